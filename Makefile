@@ -1,0 +1,50 @@
+# Two commands do all the set-up on a fresh Debian 12 machine:
+#   make run    install what is missing, then run the main job on the default scene
+#   make test   install what is missing, then run every test
+# Both are idempotent: with everything in place the install step is a few stat calls.
+
+SHELL := /bin/bash
+VENV  ?= .venv
+PY    := $(VENV)/bin/python
+SCENE ?= jobs/grid3x3.toml
+OUT   ?= out
+
+# Debian packages: PETSc 3.18 + petsc4py, mpi4py + OpenMPI 4.1, and venv support.
+APT_PACKAGES := python3-petsc4py python3-mpi4py python3-venv openmpi-bin
+SUDO := $(if $(filter 0,$(shell id -u)),,sudo)
+
+# mpirun as root, and more ranks than cores (tests and `make run` on small machines).
+export OMPI_ALLOW_RUN_AS_ROOT := 1
+export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
+export OMPI_MCA_rmaps_base_oversubscribe := 1
+
+.PHONY: run test install system-packages clean
+
+run: install
+	@echo "main job: mesh the default scene $(SCENE) (the multi-start service replaces this later)"
+	$(VENV)/bin/mscap mesh $(SCENE) -o $(OUT)/$(basename $(notdir $(SCENE)))
+
+test: install
+	$(PY) -m pytest -q
+
+install: system-packages $(VENV)/.installed
+
+# Checked on every call (a few dpkg-query calls): installs only what is missing.
+system-packages:
+	@missing=$$(for p in $(APT_PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
+	    | grep -q '^install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	    echo "installing Debian packages: $$missing"; \
+	    $(SUDO) apt-get update -qq && \
+	    DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
+
+$(VENV)/.installed: pyproject.toml
+	@test -x $(PY) || /usr/bin/python3 -m venv --system-site-packages $(VENV)
+	$(PY) -m pip install -q --disable-pip-version-check -e '.[test]'
+	@$(PY) -c "from mscap.petsc import petsc; import mpi4py, gmsh, h5py, meshio; \
+	    print('environment ok: PETSc', '.'.join(map(str, petsc().Sys.getVersion())))"
+	@touch $@
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache

@@ -1,0 +1,52 @@
+"""The ``mscap`` command: argparse subcommands, one small module each."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from .. import __version__
+from ..errors import MscapError
+from . import mesh
+
+__all__ = ["main"]
+
+_COMMANDS = (mesh,)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mscap", description="Design capacitive stretch sensors.",
+        epilog="PETSc options (-ksp_type, -log_view, ...) given after the subcommand's "
+               "arguments go to PETSc.")
+    parser.add_argument("--version", action="version", version=f"mscap {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in _COMMANDS:
+        command.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the console script; returns the exit status."""
+    args, petsc_args = build_parser().parse_known_args(argv)
+    unknown = [a for a in petsc_args if a.startswith("--")]
+    if unknown:
+        build_parser().error(f"unrecognized arguments: {' '.join(unknown)}")
+    args.petsc_args = petsc_args
+    logging.basicConfig(level=logging.DEBUG if args.verbose > 1 else
+                        logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return args.run(args) or 0
+    except MscapError as exc:
+        print(f"mscap: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("mscap: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

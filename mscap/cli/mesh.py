@@ -1,0 +1,46 @@
+"""``mscap mesh SCENE -o DIR``: build the layered mesh, write ``DIR/mesh.vtu``, report."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from ..io import write_mesh
+from ..layered import mesh_scene
+from ..quality import mesh_report
+from ..scene import load_scene
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("mesh", help="mesh a scene and report mesh quality",
+                       description="Mesh a scene's sheet and capacitor layout into layered "
+                                   "tets; write DIR/mesh.vtu and print a report.")
+    p.add_argument("scene", help="scene file (jobs/*.toml)")
+    p.add_argument("-o", "--output", metavar="DIR", help="directory for mesh.vtu")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    scene = load_scene(args.scene)
+    start = time.perf_counter()
+    mesh = mesh_scene(scene)
+    report = mesh_report(mesh, time.perf_counter() - start)
+    written = None
+    if args.output:
+        out = Path(args.output)
+        out.mkdir(parents=True, exist_ok=True)
+        written = out / "mesh.vtu"
+        write_mesh(written, mesh)
+    if args.json:
+        print(json.dumps({"scene": scene.name, **report.as_dict(),
+                          "file": str(written) if written else None}))
+        return 0
+    print(f"scene {scene.name} ({scene.path}): {scene.layout.k} capacitors, "
+          f"{scene.thickness_mm:.3f} mm thick")
+    for line in report.lines():
+        print("  " + line)
+    if written:
+        print(f"wrote {written}")
+    return 0

@@ -1,0 +1,140 @@
+"""Planar polygon geometry (mm), vectorised over vertices and segments.
+
+Polygons are ``(n, 2)`` arrays of vertices without the closing repeat.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "signed_area", "ccw", "edges", "segments_cross", "self_intersections",
+    "points_in_polygon", "point_segment_distance", "boundary_distance",
+    "polygons_intersect", "square", "disk", "rounded_square",
+]
+
+
+def signed_area(polygon: np.ndarray) -> float:
+    """Shoelace area; positive for counter-clockwise vertex order."""
+    x, y = polygon[:, 0], polygon[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def ccw(polygon: np.ndarray) -> np.ndarray:
+    """The polygon with counter-clockwise orientation (a new array)."""
+    polygon = np.asarray(polygon, dtype=float)
+    return polygon.copy() if signed_area(polygon) > 0 else polygon[::-1].copy()
+
+
+def edges(polygon: np.ndarray) -> np.ndarray:
+    """Closed polygon edges as an ``(n, 2, 2)`` array of segment end points."""
+    return np.stack([polygon, np.roll(polygon, -1, axis=0)], axis=1)
+
+
+def _orient(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    return (b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - \
+           (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0])
+
+
+def segments_cross(s: np.ndarray, t: np.ndarray, eps: float = 1e-12) -> np.ndarray:
+    """``(len(s), len(t))`` boolean: do segments ``s[i]`` and ``t[j]`` intersect?
+
+    Touching and collinear overlap count as intersecting.
+    """
+    p, p2 = s[:, None, 0], s[:, None, 1]
+    q, q2 = t[None, :, 0], t[None, :, 1]
+    scale = eps * max(1.0, float(np.abs(s).max()), float(np.abs(t).max())) ** 2
+    d1, d2 = _orient(q, q2, p), _orient(q, q2, p2)
+    d3, d4 = _orient(p, p2, q), _orient(p, p2, q2)
+    proper = (((d1 > scale) & (d2 < -scale)) | ((d1 < -scale) & (d2 > scale))) & \
+             (((d3 > scale) & (d4 < -scale)) | ((d3 < -scale) & (d4 > scale)))
+
+    def on_segment(a, b, c, d):  # c lies on segment ab (given collinear, |d| <= scale)
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        inside = np.all((c >= lo - 1e-12) & (c <= hi + 1e-12), axis=-1)
+        return (np.abs(d) <= scale) & inside
+
+    touch = on_segment(q, q2, p, d1) | on_segment(q, q2, p2, d2) | \
+        on_segment(p, p2, q, d3) | on_segment(p, p2, q2, d4)
+    return proper | touch
+
+
+def self_intersections(polygon: np.ndarray) -> list[tuple[int, int]]:
+    """Pairs ``(i, j)`` of non-adjacent edges of a closed polygon that intersect."""
+    e = edges(polygon)
+    n = len(e)
+    hit = segments_cross(e, e)
+    i, j = np.nonzero(np.triu(hit, 1))
+    adjacent = (j == i + 1) | ((i == 0) & (j == n - 1))
+    return [(int(a), int(b)) for a, b in zip(i[~adjacent], j[~adjacent])]
+
+
+def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Boolean per point: strictly inside ``polygon`` (crossing-number rule)."""
+    px, py = points[:, None, 0], points[:, None, 1]
+    a, b = polygon[None, :, :], np.roll(polygon, -1, axis=0)[None, :, :]
+    straddle = (a[..., 1] > py) != (b[..., 1] > py)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_cross = a[..., 0] + (py - a[..., 1]) * (b[..., 0] - a[..., 0]) / (b[..., 1] - a[..., 1])
+    return np.count_nonzero(straddle & (px < x_cross), axis=1) % 2 == 1
+
+
+def point_segment_distance(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """``(len(points), len(segments))`` Euclidean distances."""
+    a, b = segments[None, :, 0], segments[None, :, 1]
+    ab = b - a
+    ap = points[:, None, :] - a
+    length2 = np.einsum("...i,...i", ab, ab)
+    t = np.clip(np.einsum("...i,...i", ap, ab) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    return np.linalg.norm(ap - t[..., None] * ab, axis=-1)
+
+
+def boundary_distance(p: np.ndarray, q: np.ndarray) -> float:
+    """Smallest distance between the boundaries of two polygons (0 if they cross)."""
+    ep, eq = edges(p), edges(q)
+    if segments_cross(ep, eq).any():
+        return 0.0
+    return float(min(point_segment_distance(p, eq).min(), point_segment_distance(q, ep).min()))
+
+
+def polygons_intersect(p: np.ndarray, q: np.ndarray) -> bool:
+    """Do the closed regions of two simple polygons share any point?"""
+    if segments_cross(edges(p), edges(q)).any():
+        return True
+    return bool(points_in_polygon(p[:1], q)[0] or points_in_polygon(q[:1], p)[0])
+
+
+def _arc(center, radius, start, stop, spacing):
+    n = max(2, int(np.ceil(abs(stop - start) * radius / spacing)))
+    t = np.linspace(start, stop, n, endpoint=False)
+    return np.column_stack([center[0] + radius * np.cos(t), center[1] + radius * np.sin(t)])
+
+
+def square(center, size: float) -> np.ndarray:
+    """Axis-aligned square of side ``size`` (counter-clockwise)."""
+    h = 0.5 * size
+    cx, cy = center
+    return np.array([[cx - h, cy - h], [cx + h, cy - h], [cx + h, cy + h], [cx - h, cy + h]])
+
+
+def disk(center, diameter: float, spacing: float) -> np.ndarray:
+    """Regular polygon inscribed in a circle, vertices about ``spacing`` apart (>= 16)."""
+    r = 0.5 * diameter
+    n = max(16, int(np.ceil(2 * np.pi * r / spacing)))
+    t = 2 * np.pi * np.arange(n) / n
+    return np.column_stack([center[0] + r * np.cos(t), center[1] + r * np.sin(t)])
+
+
+def rounded_square(center, size: float, radius: float, spacing: float) -> np.ndarray:
+    """Square of side ``size`` whose corners are quarter circles of ``radius``."""
+    h = 0.5 * size - radius
+    cx, cy = center
+    corners = [(cx + h, cy - h, -0.5 * np.pi), (cx + h, cy + h, 0.0),
+               (cx - h, cy + h, 0.5 * np.pi), (cx - h, cy - h, np.pi)]
+    arcs = [np.vstack([_arc((x, y), radius, a, a + 0.5 * np.pi, spacing),
+                       [[x + radius * np.cos(a + 0.5 * np.pi), y + radius * np.sin(a + 0.5 * np.pi)]]])
+            for x, y, a in corners]
+    points = np.vstack(arcs)
+    # Drop the duplicate point where a straight side has zero length (radius = size/2).
+    keep = np.linalg.norm(points - np.roll(points, 1, axis=0), axis=1) > 1e-9 * size
+    return points[keep]

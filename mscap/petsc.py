@@ -1,0 +1,147 @@
+"""All PETSc plumbing lives here: finding petsc4py, initialising it with options.
+
+Debian installs petsc4py under ``$PETSC_DIR/lib/python3/dist-packages`` and adds that to
+``sys.path`` through a ``.pth`` file only if ``PETSC_DIR`` is set when Python starts.
+:func:`petsc` makes this automatic: it finds the installed PETSc when ``PETSC_DIR`` is
+unset, so ``mscap``, ``pytest`` and ``mpirun`` work without any environment set-up.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import sys
+
+__all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "aij", "LinearSolver",
+           "LinearSolveError"]
+
+from .errors import MscapError
+
+_DEBIAN_PETSC = "/usr/lib/petscdir/petsc*/*-real"
+
+
+class LinearSolveError(MscapError):
+    """A PETSc linear solve failed (factorisation breakdown, divergence)."""
+
+
+def find_petsc_dir() -> str | None:
+    """``PETSC_DIR`` if set, else the newest real-scalar Debian PETSc, else ``None``."""
+    if os.environ.get("PETSC_DIR"):
+        return os.environ["PETSC_DIR"]
+    candidates = sorted(glob.glob(_DEBIAN_PETSC))
+    return candidates[-1] if candidates else None
+
+
+def petsc(argv: list[str] | None = None):
+    """Initialise petsc4py once (with command-line ``argv``) and return ``PETSc``.
+
+    ``argv`` entries such as ``-electro_ksp_type cg`` go into the options database; the
+    first call decides, later calls return the same module.
+    """
+    if "petsc4py.PETSc" in sys.modules:
+        return sys.modules["petsc4py.PETSc"]
+    petsc_dir = find_petsc_dir()
+    if petsc_dir:
+        os.environ.setdefault("PETSC_DIR", petsc_dir)
+        site = os.path.join(petsc_dir, "lib", "python3", "dist-packages")
+        if os.path.isdir(site) and site not in sys.path:
+            sys.path.append(site)
+    import petsc4py
+
+    petsc4py.init([sys.argv[0]] + list(argv or []))
+    from petsc4py import PETSc
+
+    global _command_line
+    _command_line = set(PETSc.Options().getAll())
+    return PETSc
+
+
+#: Default solver per options prefix. The command line (and a scene's [petsc] table)
+#: override these through KSP.setFromOptions, e.g. ``-electro_ksp_type cg``.
+DEFAULTS: dict[str, dict[str, str]] = {
+    "electro_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "cholmod"},
+    "elastic_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
+    "adjoint_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
+}
+
+_command_line: set[str] | None = None
+
+
+def set_scene_options(options) -> None:
+    """Put a scene's ``[petsc]`` entries (name, value) into the options database;
+    anything given on the command line wins."""
+    PETSc = petsc()
+    database = PETSc.Options()
+    for name, value in options:
+        if name not in _command_line:
+            database.setValue(name, value)
+
+
+def aij(matrix, symmetric: bool = True, spd: bool = False):
+    """A sequential PETSc AIJ matrix from a scipy CSR matrix (values copied).
+
+    ``spd`` tells PETSc the matrix is positive definite (electrostatics); elastic
+    Hessians of compressed thin sheets can be indefinite, so it is off by default."""
+    PETSc = petsc()
+    csr = matrix.tocsr()
+    mat = PETSc.Mat().createAIJ(
+        size=csr.shape, comm=PETSc.COMM_SELF,
+        csr=(csr.indptr.astype(PETSc.IntType), csr.indices.astype(PETSc.IntType), csr.data))
+    if symmetric:
+        mat.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+    if spd:
+        mat.setOption(PETSc.Mat.Option.SPD, True)
+    return mat
+
+
+class LinearSolver:
+    """A KSP with an options prefix and named defaults; factorises once per operator.
+
+    Parameters
+    ----------
+    prefix
+        Options prefix such as ``"electro_"``; defaults come from :data:`DEFAULTS`.
+    """
+
+    def __init__(self, prefix: str):
+        PETSc = petsc()
+        self.prefix = prefix
+        self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+        self.ksp.setOptionsPrefix(prefix)
+        defaults = DEFAULTS.get(prefix, {})
+        self.ksp.setType(defaults.get("ksp_type", "preonly"))
+        pc = self.ksp.getPC()
+        pc.setType(defaults.get("pc_type", "cholesky"))
+        if "pc_factor_mat_solver_type" in defaults:
+            pc.setFactorSolverType(defaults["pc_factor_mat_solver_type"])
+        self.ksp.setFromOptions()
+        self._mat = None
+
+    def set_operator(self, mat) -> None:
+        """Use ``mat`` (PETSc Mat) from now on; the factorisation happens here."""
+        self._mat = mat
+        self.ksp.setOperators(mat)
+        self.ksp.setUp()
+
+    def solve(self, rhs):
+        """Solve for one right-hand side ``(n,)`` or several ``(n, m)`` columns."""
+        import numpy as np
+
+        rhs = np.asarray(rhs, dtype=float)
+        columns = rhs.reshape(len(rhs), -1)
+        out = np.empty_like(columns)
+        b, x = self._mat.createVecLeft(), self._mat.createVecRight()
+        for j in range(columns.shape[1]):
+            b.setArray(columns[:, j])
+            self.ksp.solve(b, x)
+            reason = self.ksp.getConvergedReason()
+            if reason < 0:
+                raise LinearSolveError(f"{self.prefix}ksp diverged (reason {reason}) on right-hand side {j}")
+            out[:, j] = x.getArray()
+        return out.reshape(rhs.shape)
+
+    @property
+    def description(self) -> str:
+        pc = self.ksp.getPC()
+        solver = pc.getFactorSolverType() if pc.getType() in ("cholesky", "lu") else ""
+        return f"{self.ksp.getType()}/{pc.getType()}" + (f"/{solver}" if solver else "")
