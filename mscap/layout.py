@@ -74,12 +74,12 @@ def check_layout(layout: Layout, sheet_outline: np.ndarray, min_gap_mm: float) -
     for j, outline in enumerate(layout.outlines):
         if len(outline) < 3:
             raise GeometryError(f"capacitor {j} has {len(outline)} vertices; need at least 3", j)
-        if abs(geometry.signed_area(outline)) <= 0:
-            raise GeometryError(f"capacitor {j} has zero area", j)
         crossings = geometry.self_intersections(outline)
         if crossings:
             a, b = crossings[0]
             raise GeometryError(f"capacitor {j} outline intersects itself (edges {a} and {b})", j)
+        if abs(geometry.signed_area(outline)) <= 0:
+            raise GeometryError(f"capacitor {j} has zero area", j)
         outside = ~geometry.points_in_polygon(outline, sheet_outline)
         if outside.any() or geometry.segments_cross(geometry.edges(outline), sheet_edges).any():
             i = int(np.argmax(outside)) if outside.any() else 0

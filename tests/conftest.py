@@ -1,0 +1,81 @@
+"""Shared fixtures: small scenes written from Python dicts."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import pytest
+
+
+def _value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    return repr(v)
+
+
+def to_toml(data: dict, prefix: str = "") -> str:
+    """Enough of a TOML writer for test scenes: scalars, arrays, tables, arrays of tables."""
+    lines, nested = [], []
+    for key, value in data.items():
+        full = f"{prefix}.{key}" if prefix else key
+        if isinstance(value, dict):
+            nested.append(f"\n[{full}]\n" + to_toml(value, full))
+        elif isinstance(value, list) and value and all(isinstance(x, dict) for x in value):
+            nested.extend(f"\n[[{full}]]\n" + to_toml(x, full) for x in value)
+        else:
+            lines.append(f"{key} = {_value(value)}")
+    return "\n".join(lines) + "".join(nested) + "\n"
+
+
+def _layer(name, kind, t, material, fill=None):
+    layer = {"name": name, "kind": kind, "thickness_mm": t, "material": material}
+    if fill:
+        layer["fill"] = fill
+    return layer
+
+
+SMALL_SCENE = {
+    "name": "small",
+    "sheet": {"width_mm": 30.0, "height_mm": 20.0},
+    "materials": {
+        "clear": {"youngs_modulus_MPa": 0.57, "poisson_ratio": 0.47, "relative_permittivity": 2.84},
+        "carbon": {"youngs_modulus_MPa": 1.1, "poisson_ratio": 0.47, "relative_permittivity": 2.84},
+    },
+    "layers": [
+        _layer("protective_bottom", "dielectric", 0.14, "clear"),
+        _layer("bottom_plates", "conductive", 0.07, "carbon", "clear"),
+        _layer("dielectric", "dielectric", 0.14, "clear"),
+        _layer("top_plates", "conductive", 0.07, "carbon", "clear"),
+        _layer("protective_top", "dielectric", 0.14, "clear"),
+    ],
+    "capacitors": {
+        "min_gap_mm": 1.0,
+        "outlines_mm": [
+            [[3.0, 4.0], [13.0, 4.0], [13.0, 16.0], [3.0, 16.0]],
+            [[17.0, 5.0], [27.0, 5.0], [25.0, 15.0], [19.0, 16.0]],
+        ],
+    },
+    "mesh": {"edge_length_mm": 3.0, "edge_length_outline_mm": 0.5, "grading_distance_mm": 3.0},
+    "poses": [{"name": "rest", "kind": "free"}],
+}
+
+
+@pytest.fixture
+def small_scene_dict():
+    """A fresh, valid, fast-to-mesh scene as a dict (mutate freely)."""
+    return copy.deepcopy(SMALL_SCENE)
+
+
+@pytest.fixture
+def write_scene(tmp_path):
+    """``write_scene(dict) -> path`` of a TOML file holding it."""
+    def write(data: dict, name: str = "scene.toml"):
+        path = tmp_path / name
+        path.write_text(to_toml(data))
+        return path
+    return write
