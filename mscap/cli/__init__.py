@@ -8,11 +8,11 @@ import sys
 
 from .. import __version__
 from ..errors import MscapError
-from . import mesh
+from . import capacitance, mesh
 
 __all__ = ["main"]
 
-_COMMANDS = (mesh,)
+_COMMANDS = (mesh, capacitance)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,190 @@
+"""Lagrange P1/P2 tetrahedra: basis tables and vectorised element kernels.
+
+Geometry is always the straight-sided (affine) tet: for P2 the extra nodes are the edge
+midpoints, so an element depends on the vertex positions only through the Jacobian
+``J = [p1 - p0, p2 - p0, p3 - p0]`` (edges as columns). Physical basis gradients are
+``G = D J⁻¹`` with ``D`` the reference gradients (rows), so a stiffness matrix is
+``vol · Σ_q w_q D_q A D_qᵀ`` with ``A = J⁻¹ J⁻ᵀ`` and quadrature weights ``w_q`` that sum
+to 1. The reference tensor ``S[k, l] = Σ_q w_q D_q[:, k] ⊗ D_q[:, l]`` turns assembly
+into one matrix product over all elements.
+
+Shape derivative (straight-sided P1/P2). For ``E = vol Σ_q w_q Σ_ab W_ab g_aq · g_bq``
+with field gradients ``g = J⁻ᵀ ĝ`` held at fixed nodal values and ``W`` symmetric,
+``d vol = vol tr(J⁻¹ dJ)`` and ``dg = -J⁻ᵀ dJᵀ g`` give
+
+    dE/dp_a = vol (tr(T) I - 2 T) ∇λ_a,    T = Σ_q w_q Σ_ab W_ab g_aq g_bqᵀ,
+
+with ``∇λ_a`` the P1 (vertex) gradients: the Maxwell stress of the field acting on the
+vertices. The rows sum to zero (translation invariance) for any field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Element", "P1", "P2", "element", "dof_table", "jacobians", "stiffness", "energy_vjp"]
+
+#: Elements per block in the vectorised kernels (bounds temporary memory, not a loop
+#: over elements: each block is processed by whole-array operations).
+BLOCK = 32768
+
+#: The 6 edges of a tet as local vertex pairs; P2 edge node ``4 + e`` sits on edge ``e``.
+TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+
+# Reference gradients of the barycentric coordinates λ0 = 1 - ξ - η - ζ, λ1..3 = ξ, η, ζ.
+_DLAMBDA = np.array([[-1.0, -1.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class Element:
+    """A Lagrange tet element on the reference tet.
+
+    Attributes
+    ----------
+    order
+        Polynomial degree (1 or 2).
+    weights
+        ``(nq,)`` quadrature weights, normalised to sum to 1 (multiply by the volume).
+    gradients
+        ``(nq, nb, 3)`` reference gradients of the ``nb`` basis functions at the points.
+    tensor
+        ``(3, 3, nb, nb)`` reference stiffness tensor ``Σ_q w_q D_q[:, k] ⊗ D_q[:, l]``.
+    """
+
+    order: int
+    weights: np.ndarray
+    gradients: np.ndarray
+    tensor: np.ndarray
+
+    @property
+    def n_basis(self) -> int:
+        return self.gradients.shape[1]
+
+
+def _make(order: int, barycentric: np.ndarray, weights: np.ndarray) -> Element:
+    lam = np.asarray(barycentric, dtype=float)  # (nq, 4)
+    if order == 1:
+        grads = np.broadcast_to(_DLAMBDA, (len(lam), 4, 3)).copy()
+    else:
+        # N_a = λa(2λa − 1) → (4λa − 1)∇λa;  N_ab = 4 λa λb → 4(λa ∇λb + λb ∇λa).
+        vertex = (4 * lam - 1)[:, :, None] * _DLAMBDA[None]
+        a, b = TET_EDGES[:, 0], TET_EDGES[:, 1]
+        edge = 4 * (lam[:, a, None] * _DLAMBDA[b][None] + lam[:, b, None] * _DLAMBDA[a][None])
+        grads = np.concatenate([vertex, edge], axis=1)
+    weights = np.asarray(weights, dtype=float)
+    tensor = np.einsum("q,qik,qjl->klij", weights, grads, grads)
+    for array in (weights, grads, tensor):
+        array.setflags(write=False)
+    return Element(order, weights, grads, tensor)
+
+
+# P1 gradients are constant: one point. P2: the integrand |∇φ|² has degree 2, and the
+# 4-point rule (a, b, b, b), a = (5 + 3√5)/20, b = (5 − √5)/20, is exact for degree 2.
+_A, _B = (5 + 3 * np.sqrt(5)) / 20, (5 - np.sqrt(5)) / 20
+P1 = _make(1, [[0.25] * 4], [1.0])
+P2 = _make(2, _B + (_A - _B) * np.eye(4), [0.25] * 4)
+
+
+def element(order: int) -> Element:
+    """The element of the given order (1 or 2)."""
+    return {1: P1, 2: P2}[order]
+
+
+def dof_table(tets: np.ndarray, n_vertices: int, order: int) -> tuple[np.ndarray, int]:
+    """Degrees of freedom per tet and their number.
+
+    P1 dofs are the vertices. P2 adds one dof per unique edge, numbered after the
+    vertices (``n_vertices + edge``), so vertex values are the first ``n_vertices``
+    entries of any P2 field.
+
+    Returns
+    -------
+    dofs
+        ``(M, 4)`` or ``(M, 10)`` dof indices, local order as :data:`TET_EDGES`.
+    n_dofs
+        Total number of dofs.
+    """
+    tets = np.asarray(tets, dtype=np.int64)
+    if order == 1:
+        return tets, n_vertices
+    pairs = np.sort(tets[:, TET_EDGES], axis=2)  # (M, 6, 2)
+    keys = pairs[:, :, 0] * n_vertices + pairs[:, :, 1]
+    unique, edge_of = np.unique(keys.ravel(), return_inverse=True)
+    dofs = np.concatenate([tets, n_vertices + edge_of.reshape(-1, 6)], axis=1)
+    return dofs, n_vertices + len(unique)
+
+
+def jacobians(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse Jacobians ``(M, 3, 3)`` and signed volumes ``(M,)`` of affine tets."""
+    p = points[tets]
+    e0, e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]  # columns of J
+    # Rows of J⁻¹ are the cofactor vectors e1×e2, e2×e0, e0×e1 over det J.
+    cofactors = np.stack([np.cross(e1, e2), np.cross(e2, e0), np.cross(e0, e1)], axis=1)
+    det = np.einsum("mi,mi->m", e0, cofactors[:, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = cofactors / det[:, None, None]
+    return inv, det / 6.0
+
+
+def stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    """Element matrices ``coefficient · ∫ ∇N_i · ∇N_j`` for all tets, ``(M, nb, nb)``.
+
+    ``coefficient`` is ``(M,)``; volumes are taken as signed (callers reject inverted
+    tets)."""
+    nb = el.n_basis
+    out = np.empty((len(tets), nb, nb))
+    tensor = el.tensor.reshape(9, nb * nb)
+    for start in range(0, len(tets), BLOCK):
+        block = slice(start, start + BLOCK)
+        inv, vol = jacobians(points, tets[block])
+        metric = np.einsum("mki,mli->mkl", inv, inv).reshape(-1, 9)  # A = J⁻¹ J⁻ᵀ
+        out[block] = ((metric * (coefficient[block] * vol)[:, None]) @ tensor).reshape(-1, nb, nb)
+    return out
+
+
+def energy_vjp(el: Element, points: np.ndarray, tets: np.ndarray, dofs: np.ndarray,
+               coefficient: np.ndarray, fields: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Vertex gradient of ``Σ_ab W_ab Σ_e c_e φ_aᵀ K_e(x) φ_b`` at fixed fields.
+
+    Parameters
+    ----------
+    el
+        The element.
+    points
+        ``(N, 3)`` vertex positions.
+    tets, dofs
+        ``(M, 4)`` vertices and ``(M, nb)`` dofs of the elements to include.
+    coefficient
+        ``(M,)`` coefficient per element.
+    fields
+        ``(n_dofs, m)`` nodal values of ``m`` fields.
+    weights
+        ``(m, m)`` weights ``W``; only its symmetric part matters.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N, 3)`` derivative with respect to the vertex positions.
+    """
+    w = 0.5 * (weights + weights.T)
+    nq, m = len(el.weights), fields.shape[1]
+    ref_rows = el.gradients.transpose(0, 2, 1).reshape(nq * 3, el.n_basis)  # rows (q, k)
+    out = np.zeros((len(points), 3))
+    if m == 0:
+        return out
+    for start in range(0, len(tets), BLOCK):
+        block = slice(start, start + BLOCK)
+        inv, vol = jacobians(points, tets[block])
+        ref = (ref_rows @ fields[dofs[block]]).reshape(-1, nq, 3, m)  # ĝ per point and field
+        grad = np.matmul(np.swapaxes(inv, 1, 2)[:, None], ref)  # g = J⁻ᵀ ĝ, (m_e, nq, 3, m)
+        mixed = (grad @ w) * el.weights[None, :, None, None]
+        t = np.einsum("eqif,eqjf->eij", grad, mixed, optimize=True)
+        g1 = _DLAMBDA @ inv  # P1 gradients ∇λ_a, (m_e, 4, 3)
+        trace = np.trace(t, axis1=1, axis2=2)
+        local_grad = (coefficient[block] * vol)[:, None, None] * (trace[:, None, None] * g1 - 2 * g1 @ t)
+        vertices = tets[block].ravel()
+        for c in range(3):
+            out[:, c] += np.bincount(vertices, weights=local_grad[:, :, c].ravel(), minlength=len(points))
+    return out
