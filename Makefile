@@ -9,8 +9,9 @@ PY    := $(VENV)/bin/python
 SCENE ?= jobs/grid3x3.toml
 OUT   ?= out
 
-# Debian packages: PETSc 3.18 + petsc4py, mpi4py + OpenMPI 4.1, and venv support.
-APT_PACKAGES := python3-petsc4py python3-mpi4py python3-venv openmpi-bin
+# Debian packages: PETSc 3.18 + petsc4py, mpi4py + OpenMPI 4.1, venv support, and OpenBLAS
+# (PETSc links the reference BLAS otherwise: OpenBLAS halves the Cholesky factorisations).
+APT_PACKAGES := python3-petsc4py python3-mpi4py python3-venv openmpi-bin libopenblas0-pthread
 SUDO := $(if $(filter 0,$(shell id -u)),,sudo)
 
 # mpirun as root, and more ranks than cores (tests and `make run` on small machines).

@@ -35,11 +35,17 @@ def find_petsc_dir() -> str | None:
 def petsc(argv: list[str] | None = None):
     """Initialise petsc4py once (with command-line ``argv``) and return ``PETSc``.
 
-    ``argv`` entries such as ``-electro_ksp_type cg`` go into the options database; the
-    first call decides, later calls return the same module.
+    ``argv`` entries such as ``-electro_ksp_type cg`` go into the options database. The
+    first call initialises PETSc with them; a later call (a second command run in the
+    same process, as tests do) inserts its ``argv`` into the database.
     """
+    global _command_line
     if "petsc4py.PETSc" in sys.modules:
-        return sys.modules["petsc4py.PETSc"]
+        PETSc = sys.modules["petsc4py.PETSc"]
+        if argv:
+            PETSc.Options().insertString(" ".join(argv))
+            _command_line = _command_line | set(PETSc.Options().getAll())
+        return PETSc
     petsc_dir = find_petsc_dir()
     if petsc_dir:
         os.environ.setdefault("PETSC_DIR", petsc_dir)
@@ -51,7 +57,6 @@ def petsc(argv: list[str] | None = None):
     petsc4py.init([sys.argv[0]] + list(argv or []))
     from petsc4py import PETSc
 
-    global _command_line
     _command_line = set(PETSc.Options().getAll())
     return PETSc
 
