@@ -111,7 +111,7 @@ def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSett
         for option in ("MeshSizeExtendFromBoundary", "MeshSizeFromPoints", "MeshSizeFromCurvature"):
             gmsh.option.setNumber(f"Mesh.{option}", 0)
         # Frontal-Delaunay: gmsh's Delaunay (5) is 10 % faster but follows the size ramp off the
-        # outlines worse: up to 15 % capacitance error where this has 5 % (docs/electrostatics.md).
+        # outlines worse: up to 22 % capacitance error where this has 5 % (docs/electrostatics.md).
         gmsh.option.setNumber("Mesh.Algorithm", 6)
         gmsh.model.mesh.generate(2)
 
