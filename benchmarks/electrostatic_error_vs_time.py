@@ -46,8 +46,7 @@ sys.path.insert(0, str(ROOT))
 from mscap.electrostatic import build_problem, solve  # noqa: E402
 from mscap.geometry import square  # noqa: E402
 from mscap.layout import Layout  # noqa: E402
-from mscap.layered import extrude  # noqa: E402
-from mscap.mesh2d import triangulate  # noqa: E402
+from mscap.layered import mesh_scene  # noqa: E402
 from mscap.petsc import petsc  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 
@@ -59,10 +58,11 @@ FIELDS = ["order", "edge_length_outline_mm", "edge_length_mm", "grading_distance
 def run(scene, order, h_out, h_far, grading, per_layer, sheet=None, layout=None, label=""):
     settings = dataclasses.replace(scene.mesh, edge_length_outline_mm=h_out, edge_length_mm=h_far,
                                    grading_distance_mm=grading, elements_per_layer=per_layer, order=order)
+    variant = dataclasses.replace(scene, mesh=settings,
+                                  sheet_outline_mm=scene.sheet_outline_mm if sheet is None else sheet,
+                                  layout=scene.layout if layout is None else layout)
     t0 = time.perf_counter()
-    mesh2d = triangulate(scene.sheet_outline_mm if sheet is None else sheet,
-                         scene.layout if layout is None else layout, settings)
-    mesh = extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], per_layer)
+    mesh = mesh_scene(variant)
     t1 = time.perf_counter()
     problem = build_problem(mesh, scene.layers, order)
     t2 = time.perf_counter()

@@ -78,7 +78,7 @@ class Table:
     def _convert(self, key: str, value: Any, kind: type) -> Any:
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
-        if kind is int and isinstance(value, bool) or not isinstance(value, kind):
+        if (kind is int and isinstance(value, bool)) or not isinstance(value, kind):
             raise SceneError(self.path, key,
                              f"expected {_TYPE_NAMES.get(kind, kind.__name__)}, "
                              f"got {_describe(value)}")

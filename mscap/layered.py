@@ -19,7 +19,7 @@ import numpy as np
 
 from .mesh2d import TriMesh
 
-__all__ = ["LayeredMesh", "extrude", "mesh_scene", "level_heights", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
+__all__ = ["LayeredMesh", "extrude", "mesh_scene", "level_heights", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
 
 #: Layer indices (bottom to top) of the two conductive layers.
 BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER = 1, 3
@@ -82,9 +82,13 @@ class LayeredMesh:
 
     def volumes(self, points: np.ndarray | None = None) -> np.ndarray:
         """Signed tet volumes (mm³) at ``points`` (default: rest positions)."""
-        x = self.points if points is None else points
-        p = x[self.tets]
-        return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) / 6.0
+        return tet_volumes(self.points if points is None else points, self.tets)
+
+
+def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes of the tets ``(M, 4)`` at ``points`` (positive: right-handed)."""
+    p = points[tets]
+    return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) / 6.0
 
 
 def level_heights(thicknesses_mm, elements_per_layer: int) -> tuple[np.ndarray, np.ndarray]:
@@ -115,9 +119,7 @@ def extrude(mesh2d: TriMesh, thicknesses_mm, elements_per_layer: int = 1) -> Lay
     triangle_of_tet = np.tile(np.repeat(np.arange(n_tri), 3), n_slabs)
     layer_of_tet = np.repeat(layer_of_slab, 3 * n_tri)
 
-    p = points[tets]
-    signed = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0])
-    negative = signed < 0
+    negative = tet_volumes(points, tets) < 0
     tets[negative] = tets[negative][:, [0, 2, 1, 3]]
 
     capacitor_of_tet = mesh2d.capacitor_of_triangle[triangle_of_tet].copy()

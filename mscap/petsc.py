@@ -12,10 +12,12 @@ import glob
 import os
 import sys
 
-__all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "aij", "LinearSolver",
-           "LinearSolveError"]
+import numpy as np
 
 from .errors import MscapError
+
+__all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "aij", "LinearSolver",
+           "LinearSolveError"]
 
 _DEBIAN_PETSC = "/usr/lib/petscdir/petsc*/*-real"
 
@@ -130,8 +132,6 @@ class LinearSolver:
 
     def solve(self, rhs):
         """Solve for one right-hand side ``(n,)`` or several ``(n, m)`` columns."""
-        import numpy as np
-
         rhs = np.asarray(rhs, dtype=float)
         columns = rhs.reshape(len(rhs), -1)
         out = np.empty_like(columns)

@@ -6,7 +6,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .layered import LayeredMesh
+from .layered import LayeredMesh, tet_volumes
 
 __all__ = ["triangle_angles_deg", "dihedral_angles_deg", "aspect_ratios", "MeshReport", "mesh_report"]
 
@@ -47,7 +47,7 @@ def aspect_ratios(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     edge_pairs = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
     longest = np.linalg.norm(p[:, edge_pairs[:, 1]] - p[:, edge_pairs[:, 0]], axis=2).max(axis=1)
     area = np.linalg.norm(_face_normals(p), axis=2).sum(axis=1)
-    volume = np.abs(np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0])) / 6
+    volume = np.abs(tet_volumes(points, tets))
     inradius = 3.0 * volume / area
     return longest / (2.0 * np.sqrt(6.0) * inradius)
 

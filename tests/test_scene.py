@@ -72,15 +72,6 @@ def test_grid_generators(small_scene_dict, write_scene):
         np.testing.assert_allclose(centres[1] - centres[0], [10.0, 0.0], atol=1e-9)
 
 
-def _set(path):
-    """Mutation setting ``path`` (tuple of keys/indices) to a value."""
-    def apply(d, value):
-        for key in path[:-1]:
-            d = d[key]
-        d[path[-1]] = value
-    return apply
-
-
 def _delete(d, path):
     for key in path[:-1]:
         d = d[key]
