@@ -22,10 +22,11 @@ import numpy as np
 from . import geometry
 from ._toml import Table
 from .errors import GeometryError, SceneError
+from .poses import read_pose
 from .layout import SHAPES, Layout, check_layout, grid_layout
 
 __all__ = [
-    "EPSILON0_PF_PER_MM", "Material", "Layer", "MeshSettings", "Pose", "OptimizerSettings",
+    "EPSILON0_PF_PER_MM", "Material", "Layer", "MeshSettings", "ElasticSettings", "OptimizerSettings",
     "MultistartSettings", "Scene", "load_scene", "LAYER_KINDS", "POSE_KINDS",
 ]
 
@@ -35,6 +36,8 @@ EPSILON0_PF_PER_MM = 8.8541878128e-3
 #: The fixed stack, bottom to top (paper §4.1).
 LAYER_KINDS = ("dielectric", "conductive", "dielectric", "conductive", "dielectric")
 POSE_KINDS = ("free", "stretch", "poke", "glue")
+#: How Newton treats an indefinite Hessian (:mod:`mscap.newton`).
+HESSIAN_MODES = ("auto", "exact", "projected")
 
 
 @dataclass(frozen=True)
@@ -82,13 +85,14 @@ class MeshSettings:
 
 
 @dataclass(frozen=True)
-class Pose:
-    """A target pose. Only ``name`` and ``kind`` are read so far; the other keys are
-    kept verbatim for the simulation issue to type."""
+class ElasticSettings:
+    """Elastic solver settings (scene table ``[elastic]``); see :mod:`mscap.newton`."""
 
-    name: str
-    kind: str
-    params: tuple[tuple[str, Any], ...] = ()
+    order: int = 1
+    tolerance: float = 1e-8
+    max_iterations: int = 30
+    max_cuts: int = 10
+    hessian: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -126,7 +130,8 @@ class Scene:
     layout: Layout
     min_gap_mm: float
     mesh: MeshSettings
-    poses: tuple[Pose, ...]
+    poses: tuple
+    elastic: ElasticSettings
     optimizer: OptimizerSettings
     multistart: MultistartSettings
     petsc_options: tuple[tuple[str, str], ...]
@@ -169,7 +174,16 @@ def load_scene(path: str | Path) -> Scene:
     layers = _read_layers(root, materials)
     mesh = _read_mesh(root.table("mesh"))
     layout, min_gap = _read_capacitors(root.table("capacitors"), sheet, mesh)
-    poses = _read_poses(root)
+    objects = _read_objects(root, path)
+    poses = _read_poses(root, objects)
+    elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
+    if elastic.order not in (1, 2):
+        raise SceneError(path, "elastic.order", f"must be 1 or 2, got {elastic.order!r}")
+    if not elastic.tolerance > 0:
+        raise SceneError(path, "elastic.tolerance", f"must be > 0, got {elastic.tolerance!r}")
+    if elastic.hessian not in HESSIAN_MODES:
+        raise SceneError(path, "elastic.hessian",
+                         f"unknown value {elastic.hessian!r}; expected one of {', '.join(HESSIAN_MODES)}")
     optimizer = _read_dataclass(root.table("optimizer", required=False), OptimizerSettings)
     multistart = _read_dataclass(root.table("multistart", required=False), MultistartSettings)
     if multistart.k_min > multistart.k_max:
@@ -179,7 +193,7 @@ def load_scene(path: str | Path) -> Scene:
     root.finish()
     sheet.setflags(write=False)
     return Scene(path=path, name=name, description=description, sheet_outline_mm=sheet,
-                 layers=layers, layout=layout, min_gap_mm=min_gap, mesh=mesh, poses=poses,
+                 layers=layers, layout=layout, min_gap_mm=min_gap, mesh=mesh, poses=poses, elastic=elastic,
                  optimizer=optimizer, multistart=multistart, petsc_options=petsc, source=source)
 
 
@@ -308,7 +322,17 @@ def _read_capacitors(t: Table, sheet: np.ndarray, mesh: MeshSettings) -> tuple[L
     return layout, min_gap
 
 
-def _read_poses(root: Table) -> tuple[Pose, ...]:
+def _read_objects(root: Table, path: str) -> dict:
+    """Glue objects (``[objects.*]``), read only when a scene has them."""
+    t = root.table("objects", required=False)
+    if t is None:
+        return {}
+    from .glue import read_objects
+
+    return read_objects(t, path)
+
+
+def _read_poses(root: Table, objects: dict) -> tuple:
     poses, seen = [], set()
     for t in root.tables("poses", required=False):
         name = t.get("name", str)
@@ -318,8 +342,7 @@ def _read_poses(root: Table) -> tuple[Pose, ...]:
         kind = t.get("kind", str)
         if kind not in POSE_KINDS:
             raise t.error("kind", f"unknown pose kind {kind!r}; expected one of {', '.join(POSE_KINDS)}")
-        params = tuple((k, v) for k, v in t.data.items() if k not in ("name", "kind"))
-        poses.append(Pose(name, kind, params))
+        poses.append(read_pose(t, objects))
     return tuple(poses)
 
 
