@@ -28,7 +28,7 @@ from .errors import MscapError
 from .layered import LayeredMesh
 
 __all__ = ["ElasticError", "ElasticProblem", "Assembly", "build_problem", "lame_of_tets", "assemble",
-           "total_energy", "node_values"]
+           "total_energy", "node_values", "tet_fields"]
 
 log = logging.getLogger(__name__)
 
@@ -244,3 +244,11 @@ def total_energy(problem: ElasticProblem, x: np.ndarray) -> tuple[float, float]:
         energy += float(e.sum())
         min_j = min(min_j, float(j.min()))
     return (energy if np.isfinite(energy) else np.inf), min_j
+
+
+def tet_fields(problem: ElasticProblem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per tet: J and the Cauchy stress ``(M, 3, 3)`` (MPa) of the volume-averaged F."""
+    el = problem.element
+    xt = np.swapaxes(x[problem.nodes], 1, 2)
+    F = sum(w * (xt @ (el.gradients[q][None] @ problem.rest_inv)) for q, w in enumerate(el.weights))
+    return neohookean.det_and_inverse(F)[0], neohookean.cauchy_stress(F, problem.mu, problem.lam)

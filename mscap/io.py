@@ -24,10 +24,12 @@ class TetData:
 
 
 def write_mesh(path: str | Path, mesh: LayeredMesh, points: np.ndarray | None = None,
-               point_data: dict[str, np.ndarray] | None = None) -> None:
+               point_data: dict[str, np.ndarray] | None = None,
+               cell_data: dict[str, np.ndarray] | None = None) -> None:
     """Write ``mesh`` (optionally at deformed ``points``) to a VTU file.
 
-    Cell data ``layer`` (0..4, bottom to top) and ``capacitor`` (index or -1).
+    Cell data ``layer`` (0..4, bottom to top) and ``capacitor`` (index or -1), plus any
+    ``cell_data`` given (one row per tet).
     """
     import meshio
 
@@ -39,7 +41,8 @@ def write_mesh(path: str | Path, mesh: LayeredMesh, points: np.ndarray | None = 
             cells,
             point_data=dict(point_data or {}),
             cell_data={"layer": [mesh.layer_of_tet.astype(np.int32)],
-                       "capacitor": [mesh.capacitor_of_tet.astype(np.int32)]},
+                       "capacitor": [mesh.capacitor_of_tet.astype(np.int32)],
+                       **{name: [np.asarray(value)] for name, value in (cell_data or {}).items()}},
         ),
         binary=True,
     )

@@ -190,8 +190,7 @@ def _glue(problem: ElasticProblem, pose) -> Loading:
     def guess(x: np.ndarray, t: float) -> np.ndarray:
         # Each node at height h above the bottom goes to P(q) + h n(q): the sheet follows
         # the surface with straight normals (Kirchhoff–Love), exact for a thin sheet.
-        position = pose.positions(xy, t)
-        jac = pose.jacobian(xy, t)
+        position, jac = pose.positions_and_jacobian(xy, t)
         normal = np.cross(jac[:, :, 0], jac[:, :, 1])
         normal /= np.linalg.norm(normal, axis=1)[:, None]
         return position + (rest[:, 2] - z0)[:, None] * normal

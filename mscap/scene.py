@@ -176,6 +176,7 @@ def load_scene(path: str | Path) -> Scene:
     layout, min_gap = _read_capacitors(root.table("capacitors"), sheet, mesh)
     objects = _read_objects(root, path)
     poses = _read_poses(root, objects)
+    _check_glue_coverage(path, poses, sheet)
     elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
     if elastic.order not in (1, 2):
         raise SceneError(path, "elastic.order", f"must be 1 or 2, got {elastic.order!r}")
@@ -330,6 +331,18 @@ def _read_objects(root: Table, path: str) -> dict:
     from .glue import read_objects
 
     return read_objects(t, path)
+
+
+def _check_glue_coverage(path: str, poses: tuple, sheet: np.ndarray) -> None:
+    """Every glued pose's object must cover the whole placed sheet."""
+    for i, pose in enumerate(poses):
+        if pose.kind == "glue":
+            from .glue import check_covers
+
+            try:
+                check_covers(pose, sheet)
+            except GeometryError as exc:
+                raise SceneError(path, f"poses[{i}]", str(exc)) from None
 
 
 def _read_poses(root: Table, objects: dict) -> tuple:

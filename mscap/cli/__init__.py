@@ -8,11 +8,11 @@ import sys
 
 from .. import __version__
 from ..errors import MscapError
-from . import capacitance, mesh
+from . import capacitance, mesh, simulate
 
 __all__ = ["main"]
 
-_COMMANDS = (mesh, capacitance)
+_COMMANDS = (mesh, capacitance, simulate)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,103 @@
+"""``mscap simulate SCENE``: every pose's equilibrium and capacitances."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..elastic import tet_fields
+from ..io import write_mesh
+from ..petsc import petsc, set_scene_options
+from ..scene import load_scene
+from ..simulate import simulate
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("simulate", help="simulate every pose: elastic equilibrium, then capacitances",
+                       description="Mesh a scene, solve the neo-Hookean equilibrium of every pose "
+                                   "and the capacitances in it; print a pose × capacitor table "
+                                   "(pF) and the time per stage. PETSc options such as "
+                                   "-elastic_pc_factor_mat_solver_type cholmod may follow.")
+    p.add_argument("scene", help="scene file (jobs/*.toml)")
+    p.add_argument("--order", type=int, choices=(1, 2), help="electrostatic element order (default: the scene's)")
+    p.add_argument("--elastic-order", type=int, choices=(1, 2), help="elastic element order (default: the scene's)")
+    p.add_argument("--poses", help="comma-separated pose names to run (default: all)")
+    p.add_argument("--export", metavar="DIR", help="write DIR/<pose>.vtu: displacement, J, stress, φ")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    import dataclasses
+
+    petsc(args.petsc_args)
+    scene = load_scene(args.scene)
+    set_scene_options(scene.petsc_options)
+    if args.poses:
+        wanted = args.poses.split(",")
+        known = {p.name for p in scene.poses}
+        unknown = [name for name in wanted if name not in known]
+        if unknown:
+            from ..errors import SceneError
+
+            raise SceneError(scene.path, "poses", f"no pose named {unknown[0]!r}; "
+                             f"the scene has {', '.join(p.name for p in scene.poses)}")
+        scene = dataclasses.replace(scene, poses=tuple(p for p in scene.poses if p.name in wanted))
+    progress = None if args.quiet else (lambda message: print(message, file=sys.stderr, flush=True))
+    sim = simulate(scene, order=args.order, elastic_order=args.elastic_order, progress=progress)
+
+    files = []
+    if args.export:
+        out = Path(args.export)
+        out.mkdir(parents=True, exist_ok=True)
+        for result in sim.poses:
+            files.append(_export(out / f"{result.name}.vtu", sim, result))
+
+    iterations = [r.state.newton_iterations if r.state else 0 for r in sim.poses]
+    if args.json:
+        record = {"scene": scene.name, "poses": [r.name for r in sim.poses],
+                  "capacitance_pF": sim.capacitance_pF.tolist(), "newton_iterations": iterations,
+                  "load_steps": [r.state.load_steps if r.state else 0 for r in sim.poses],
+                  "time_s": {key: sim.times[key] for key in ("mesh", "elastic", "electrostatic", "total")}}
+        if files:
+            record["files"] = [str(f) for f in files]
+        print(json.dumps(record))
+        return 0
+
+    k = sim.electro.k
+    print(f"scene {scene.name} ({scene.path}): {len(sim.poses)} poses, {k} capacitors, "
+          f"{len(sim.mesh.points)} vertices, {len(sim.mesh.tets)} tets")
+    header = "".join(f"{'C' + str(j) + '_pF':>10}" for j in range(k))
+    print(f"  {'pose':<16}{header} {'newton':>7} {'steps':>6} {'elastic_s':>10} {'electro_s':>10}")
+    for r in sim.poses:
+        caps = "".join(f"{c:>10.3f}" for c in r.capacitance_pF)
+        steps = r.state.load_steps if r.state else 0
+        print(f"  {r.name:<16}{caps} {iterations[sim.poses.index(r)]:>7d} {steps:>6d} "
+              f"{r.elastic_s:>10.2f} {r.electrostatic_s:>10.2f}")
+    t = sim.times
+    print(f"  time: mesh {t['mesh']:.2f} s, setup {t['setup']:.2f} s, elastic {t['elastic']:.2f} s, "
+          f"electrostatic {t['electrostatic']:.2f} s, total {t['total']:.2f} s")
+    for f in files:
+        print(f"wrote {f}")
+    return 0
+
+
+def _export(path: Path, sim, result) -> Path:
+    mesh = sim.mesh
+    point_data = {"displacement": result.vertices - mesh.points}
+    phi = result.capacitances.top_potentials[:len(mesh.points)]
+    for j in range(phi.shape[1]):
+        point_data[f"phi_{j}"] = phi[:, j]
+    cell_data = {}
+    if sim.elastic is not None:
+        nodes = result.state.nodes if result.state else sim.elastic.rest
+        j, stress = tet_fields(sim.elastic, nodes)
+        deviator = stress - np.trace(stress, axis1=1, axis2=2)[:, None, None] * np.eye(3) / 3
+        cell_data = {"J": j, "stress": stress.reshape(-1, 9),
+                     "von_mises": np.sqrt(1.5 * np.einsum("mij,mij->m", deviator, deviator))}
+    write_mesh(path, mesh, points=result.vertices, point_data=point_data, cell_data=cell_data)
+    return path
