@@ -385,7 +385,8 @@ def solve_pose(problem: ElasticProblem, loading: Loading, settings: NewtonSettin
             cuts += 1
             if cuts > settings.max_cuts or dt < 1e-6:
                 raise ElasticError(f"pose {loading.pose!r}: load step {steps + 1} (t = {t:.4g} → {t_new:.4g}) "
-                                   f"failed after {cuts - 1} step cuts: {why}; residual {r:.3g}") from None
+                                   f"failed after {cuts - 1} step cuts: {why}; residual "
+                                   f"{f'{r:.3g}' if np.isfinite(r) else 'not computed'}") from None
             log.info("pose %s: load step t = %.4g → %.4g failed (%s); halving", loading.pose, t, t_new, why)
             dt *= 0.5
             continue

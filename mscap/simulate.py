@@ -110,7 +110,11 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
             f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
             f"(elastic {t1 - t0:.2f} s, electrostatic {t2 - t1:.2f} s)")
     end = time.perf_counter()
-    times = {"mesh": meshed - start, "setup": prepared - meshed,
-             "elastic": sum(r.elastic_s for r in results),
-             "electrostatic": sum(r.electrostatic_s for r in results), "total": end - start}
+    elastic_s = sum(r.elastic_s for r in results)
+    split = {key: sum(r.state.times[key] for r in results if r.state) for key in
+             ("assembly", "factorisation", "solve", "line_search")}
+    split["other"] = elastic_s - sum(split.values())
+    times = {"mesh": meshed - start, "setup": prepared - meshed, "elastic": elastic_s,
+             "electrostatic": sum(r.electrostatic_s for r in results), "total": end - start,
+             "elastic_split": split}
     return Simulation(scene.name, mesh, problem, electro, tuple(results), times)

@@ -62,7 +62,8 @@ def run(args) -> int:
         record = {"scene": scene.name, "poses": [r.name for r in sim.poses],
                   "capacitance_pF": sim.capacitance_pF.tolist(), "newton_iterations": iterations,
                   "load_steps": [r.state.load_steps if r.state else 0 for r in sim.poses],
-                  "time_s": {key: sim.times[key] for key in ("mesh", "elastic", "electrostatic", "total")}}
+                  "time_s": {key: sim.times[key] for key in ("mesh", "elastic", "electrostatic", "total")},
+                  "elastic_split_s": sim.times["elastic_split"]}
         if files:
             record["files"] = [str(f) for f in files]
         print(json.dumps(record))
@@ -81,6 +82,9 @@ def run(args) -> int:
     t = sim.times
     print(f"  time: mesh {t['mesh']:.2f} s, setup {t['setup']:.2f} s, elastic {t['elastic']:.2f} s, "
           f"electrostatic {t['electrostatic']:.2f} s, total {t['total']:.2f} s")
+    if sim.elastic is not None:
+        print("  elastic: " + ", ".join(f"{key.replace('_', ' ')} {value:.2f} s"
+                                         for key, value in t["elastic_split"].items()))
     for f in files:
         print(f"wrote {f}")
     return 0
