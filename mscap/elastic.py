@@ -140,7 +140,7 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Elasti
     """Rest geometry, materials and the Hessian's sparsity pattern (once per mesh)."""
     if order not in (1, 2):
         raise ElasticError(f"element order must be 1 or 2, got {order!r}")
-    start = time.perf_counter()
+    started = time.perf_counter()
     n_vertices = len(mesh.points)
     nodes, n_nodes = fem.dof_table(mesh.tets, n_vertices, order)
     if order == 2:
@@ -187,7 +187,7 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Elasti
                              indptr.astype(np.int64), indices, csr_of_block.astype(np.int64), force_scale,
                              tuple(scatter))
     log.info("elastic P%d problem: %d nodes, %d dofs, %d nonzeros (%.2f s)", order, n_nodes,
-             3 * n_nodes, len(indices), time.perf_counter() - start)
+             3 * n_nodes, len(indices), time.perf_counter() - started)
     return problem
 
 

@@ -106,7 +106,8 @@ class ElasticState:
     min_gap_mm
         Smallest node–ball gap (poke), else ``None``.
     projected
-        Newton iterations that used the projected Hessian.
+        Newton iterations that used the projected Hessian (all of them in
+        ``"projected"`` mode, the fallbacks in ``"auto"`` mode).
     times
         Seconds spent in ``assembly``, ``factorisation``, ``solve``, ``line_search``.
     operator
@@ -249,6 +250,7 @@ class _Pose:
             if it == self.settings.max_iterations:
                 raise _Stall(r, f"no convergence in {it} Newton iterations")
             self.iterations += 1
+            self.projected += project
             p = None
             try:
                 self.factorise(h)
