@@ -25,7 +25,7 @@ import scipy.sparse as sp
 
 from . import fem, neohookean
 from .errors import MscapError
-from .layered import LayeredMesh
+from .layered import LayeredMesh, tet_values
 
 __all__ = ["ElasticError", "ElasticProblem", "Assembly", "build_problem", "lame_of_tets", "assemble",
            "total_energy", "node_values", "tet_fields"]
@@ -56,10 +56,6 @@ class ElasticProblem:
         ``(M, 3, 3)`` inverse rest Jacobians and ``(M,)`` rest volumes (mm³).
     mu, lam
         ``(M,)`` Lamé parameters (MPa).
-    block_of_pair
-        ``(M · nb²,)`` node-block of each (element, node a, node b) pair.
-    block_rows, block_cols
-        ``(n_blocks,)`` node row and column of each 3 × 3 block, by rows.
     diag_block
         ``(n_nodes,)`` the block (i, i).
     indptr, indices
@@ -83,9 +79,6 @@ class ElasticProblem:
     rest_vol: np.ndarray
     mu: np.ndarray
     lam: np.ndarray
-    block_of_pair: np.ndarray
-    block_rows: np.ndarray
-    block_cols: np.ndarray
     diag_block: np.ndarray
     indptr: np.ndarray
     indices: np.ndarray
@@ -128,11 +121,7 @@ class Assembly:
 
 def lame_of_tets(mesh: LayeredMesh, layers: Sequence) -> tuple[np.ndarray, np.ndarray]:
     """``(μ, λ)`` (MPa) of every tet: the layer's material, or its ``fill`` off the plates."""
-    if len(layers) <= mesh.layer_of_tet.max():
-        raise ElasticError(f"{len(layers)} layers given for a mesh with {mesh.layer_of_tet.max() + 1}")
-    plate = np.array([layer.material.lame_MPa for layer in layers])
-    fill = np.array([(layer.fill or layer.material).lame_MPa for layer in layers])
-    lame = np.where((mesh.capacitor_of_tet >= 0)[:, None], plate[mesh.layer_of_tet], fill[mesh.layer_of_tet])
+    lame = tet_values(mesh, layers, lambda material: material.lame_MPa)
     return lame[:, 0].copy(), lame[:, 1].copy()
 
 
@@ -183,7 +172,7 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Elasti
         scatter.append(sp.csr_matrix((np.ones(len(pairs)), (pairs, np.arange(len(pairs)))),
                                      shape=(len(unique), len(pairs))))
     problem = ElasticProblem(mesh, order, nodes, rest, edges, rest_inv, rest_vol, mu, lam,
-                             block_of_pair.astype(np.int64), rows, cols, diag_block,
+                             diag_block,
                              indptr.astype(np.int64), indices, csr_of_block.astype(np.int64), force_scale,
                              tuple(scatter))
     log.info("elastic P%d problem: %d nodes, %d dofs, %d nonzeros (%.2f s)", order, n_nodes,
@@ -209,7 +198,7 @@ def assemble(problem: ElasticProblem, x: np.ndarray, hessian: bool = True,
     nodes, nb = problem.nodes, problem.nodes.shape[1]
     energy, min_j = 0.0, np.inf
     gradient = np.zeros((problem.n_nodes, 3))
-    blocks = np.zeros((9, len(problem.block_rows))) if hessian else None
+    blocks = np.zeros((9, len(problem.indices) // 9)) if hessian else None
     for start in range(0, len(nodes), fem.BLOCK):
         part = slice(start, start + fem.BLOCK)
         terms = neohookean.element_terms(el, problem.rest_inv[part], problem.rest_vol[part],

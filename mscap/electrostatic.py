@@ -31,7 +31,7 @@ import scipy.sparse as sp
 
 from . import fem
 from .errors import MscapError
-from .layered import BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE_LAYER, LayeredMesh
+from .layered import BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE_LAYER, LayeredMesh, tet_values
 from .petsc import LinearSolver, aij, petsc
 
 __all__ = ["ElectrostaticError", "ElectrostaticProblem", "Capacitances", "build_problem",
@@ -159,11 +159,7 @@ def permittivity_of_tets(mesh: LayeredMesh, layers: Sequence) -> np.ndarray:
     """ε (pF/mm) of every tet: the layer's material, or its ``fill`` off the plates.
 
     ``layers`` are :class:`mscap.scene.Layer` objects, bottom to top."""
-    if len(layers) <= mesh.layer_of_tet.max():
-        raise ElectrostaticError(f"{len(layers)} layers given for a mesh with {mesh.layer_of_tet.max() + 1}")
-    plate = np.array([layer.material.permittivity_pF_per_mm for layer in layers])
-    fill = np.array([(layer.fill or layer.material).permittivity_pF_per_mm for layer in layers])
-    return np.where(mesh.capacitor_of_tet >= 0, plate[mesh.layer_of_tet], fill[mesh.layer_of_tet])
+    return tet_values(mesh, layers, lambda material: material.permittivity_pF_per_mm)
 
 
 def _plates(mesh: LayeredMesh) -> np.ndarray:

@@ -19,7 +19,7 @@ import numpy as np
 
 from .mesh2d import TriMesh
 
-__all__ = ["LayeredMesh", "extrude", "mesh_scene", "level_heights", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
+__all__ = ["LayeredMesh", "extrude", "mesh_scene", "level_heights", "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
 
 #: Layer indices (bottom to top) of the two conductive layers.
 BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER = 1, 3
@@ -83,6 +83,21 @@ class LayeredMesh:
     def volumes(self, points: np.ndarray | None = None) -> np.ndarray:
         """Signed tet volumes (mm³) at ``points`` (default: rest positions)."""
         return tet_volumes(self.points if points is None else points, self.tets)
+
+
+def tet_values(mesh: LayeredMesh, layers, value) -> np.ndarray:
+    """``value(material)`` of every tet, ``(M,)`` or ``(M, ...)``: the layer's material
+    inside a plate, its ``fill`` (conductive layers) or material elsewhere.
+
+    ``layers`` are :class:`mscap.scene.Layer` objects, bottom to top."""
+    from .errors import MeshError
+
+    if len(layers) <= mesh.layer_of_tet.max():
+        raise MeshError(f"{len(layers)} layers given for a mesh with {mesh.layer_of_tet.max() + 1}")
+    plate = np.array([value(layer.material) for layer in layers])
+    fill = np.array([value(layer.fill or layer.material) for layer in layers])
+    inside = (mesh.capacitor_of_tet >= 0).reshape((-1,) + (1,) * (plate.ndim - 1))
+    return np.where(inside, plate[mesh.layer_of_tet], fill[mesh.layer_of_tet])
 
 
 def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:

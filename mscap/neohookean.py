@@ -50,9 +50,12 @@ def energy_density(F: np.ndarray, mu: np.ndarray, lam: np.ndarray) -> np.ndarray
     """ψ(F) for ``(M, 3, 3)`` deformation gradients (MPa = mJ/mm³); ``+inf`` where J ≤ 0."""
     J = _det(F)
     with np.errstate(divide="ignore", invalid="ignore"):
-        log_j = np.log(np.where(J > 0, J, np.nan))
-        psi = 0.5 * mu * (np.einsum("...ij,...ij->...", F, F) - 3 - 2 * log_j) + 0.5 * lam * log_j ** 2
+        psi = _psi(F, np.log(np.where(J > 0, J, np.nan)), mu, lam)
     return np.where(J > 0, psi, np.inf)
+
+
+def _psi(F, log_j, mu, lam) -> np.ndarray:
+    return 0.5 * mu * (np.einsum("mij,mij->m", F, F) - 3 - 2 * log_j) + 0.5 * lam * log_j ** 2
 
 
 def first_piola(F: np.ndarray, mu: np.ndarray, lam: np.ndarray) -> np.ndarray:
@@ -140,7 +143,7 @@ def element_terms(el: fem.Element, rest_inv: np.ndarray, rest_vol: np.ndarray, x
             return ElementTerms(energy, grad, None, min_j)
         wv = w * rest_vol
         log_j = np.log(J)
-        energy += wv * (0.5 * mu * (np.einsum("mij,mij->m", F, F) - 3 - 2 * log_j) + 0.5 * lam * log_j ** 2)
+        energy += wv * _psi(F, log_j, mu, lam)
         grad += wv[:, None, None] * (G @ np.swapaxes(_piola(F, np.swapaxes(f_inv, 1, 2), log_j, mu, lam), 1, 2))
         if not hessian:
             continue

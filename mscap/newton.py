@@ -36,7 +36,7 @@ import scipy.sparse as sp
 from .contact import Ball
 from .elastic import ElasticError, ElasticProblem, assemble, total_energy
 from .petsc import LinearSolveError, LinearSolver, petsc
-from .scene import HESSIAN_MODES
+from .scene import HESSIAN_MODES, ElasticSettings
 
 __all__ = ["Loading", "NewtonSettings", "ElasticState", "Operator", "solve_pose", "HESSIAN_MODES"]
 
@@ -74,14 +74,8 @@ class Loading:
     column_push: Callable[[np.ndarray, Ball], np.ndarray] | None = None
 
 
-@dataclass(frozen=True)
-class NewtonSettings:
-    """Newton and load-stepping parameters (scene table ``[elastic]``)."""
-
-    tolerance: float = 1e-8
-    max_iterations: int = 30
-    max_cuts: int = 10
-    hessian: str = "auto"
+#: Newton and load-stepping parameters are the scene's ``[elastic]`` table.
+NewtonSettings = ElasticSettings
 
 
 @dataclass(frozen=True)
@@ -150,15 +144,13 @@ class Operator:
         self.solver = LinearSolver(prefix)
 
     def factorise(self) -> None:
-        """Factorise the current ``data`` (raises :class:`LinearSolveError` on failure)."""
+        """Factorise the current ``data``; a failed factorisation raises
+        :class:`LinearSolveError` here or at the first :meth:`solve`."""
         self.mat.assemble()  # bumps the matrix state: PETSc refactorises numerically
         try:
             self.solver.set_operator(self.mat)
         except petsc().Error as exc:
             raise LinearSolveError(f"{self.solver.description} factorisation failed: {exc}") from exc
-        reason = self.solver.ksp.getPC().getFailedReason() if hasattr(self.solver.ksp.getPC(), "getFailedReason") else 0
-        if reason and reason > 0:
-            raise LinearSolveError(f"{self.solver.description} factorisation failed (reason {reason})")
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         return self.solver.solve(rhs)
@@ -184,7 +176,7 @@ class _Pose:
         self.diag_blocks = problem.csr_of_block.reshape(-1, 9)[problem.diag_block]
         self.iterations = self.projected = 0
         self.times = {"assembly": 0.0, "factorisation": 0.0, "solve": 0.0, "line_search": 0.0}
-        self.factorised = False
+        self.final_hessian: np.ndarray | None = None  # exact Hessian at the last converged state
         self.ball: Ball | None = None
 
     # -- energy and derivatives ------------------------------------------------------
@@ -216,7 +208,7 @@ class _Pose:
 
     def factorise(self, data: np.ndarray) -> None:
         start = time.perf_counter()
-        scale = float(np.mean(np.abs(data[self.problem.csr_of_block.reshape(-1, 9)[self.problem.diag_block][:, 0]])))
+        scale = float(np.mean(np.abs(data[self.diag_blocks[:, 0]])))
         data[self.clear] = 0.0
         data[self.fixed_diag] = scale
         self.op.data[:] = data
@@ -224,7 +216,6 @@ class _Pose:
             self.op.factorise()
         finally:
             self.times["factorisation"] += time.perf_counter() - start
-        self.factorised = True
 
     def direction(self, g: np.ndarray) -> np.ndarray:
         start = time.perf_counter()
@@ -246,6 +237,7 @@ class _Pose:
             if not np.isfinite(r):
                 raise _Stall(r, "the residual is not finite")
             if r <= self.settings.tolerance:
+                self.final_hessian = None if project else h
                 return x, r
             if it == self.settings.max_iterations:
                 raise _Stall(r, f"no convergence in {it} Newton iterations")
@@ -309,14 +301,20 @@ class _Pose:
         delta[self.fixed] = self.loading.targets(t)[self.fixed] - x[self.fixed]
         if not delta.any():
             return None
-        ball, self.ball = self.ball, None  # x may lie inside the next step's ball
+        raw = self.final_hessian  # assembled at x by the convergence check of the last step
+        if raw is None or self.ball is not None:
+            ball, self.ball = self.ball, None  # x may lie inside the next step's ball
+            try:
+                _, _, raw, _ = self.gradient_and_hessian(x, hessian=True,
+                                                         project=self.settings.hessian == "projected")
+            except _Stall:
+                return None
+            finally:
+                self.ball = ball
         try:
-            _, _, raw, _ = self.gradient_and_hessian(x, hessian=True, project=self.settings.hessian == "projected")
             self.factorise(raw.copy())
-        except (_Stall, LinearSolveError):
+        except LinearSolveError:
             return None
-        finally:
-            self.ball = ball
         full = sp.csr_matrix((raw, self.problem.indices, self.problem.indptr), shape=(self.problem.n_dofs,) * 2)
         rhs = -(full @ delta.ravel()).reshape(-1, 3)
         rhs[self.fixed] = 0.0
@@ -404,8 +402,10 @@ def solve_pose(problem: ElasticProblem, loading: Loading, settings: NewtonSettin
         op = Operator(problem, "adjoint_")
         keeper = _Pose(problem, loading, settings, op)
         keeper.ball = run.ball
-        _, _, h, _ = keeper.gradient_and_hessian(x, hessian=True, project=False)
-        keeper.factorise(h)
+        h = run.final_hessian
+        if h is None:  # projected mode: the adjoint needs the exact Hessian
+            _, _, h, _ = keeper.gradient_and_hessian(x, hessian=True, project=False)
+        keeper.factorise(h.copy())
     gap = float(run.ball.distances(x).min()) if run.ball is not None else None
     state = ElasticState(loading.pose, x, steps, run.iterations, cuts, residual, min_j, energy, gap,
                          run.projected, dict(run.times), op)

@@ -88,11 +88,11 @@ class MeshSettings:
 class ElasticSettings:
     """Elastic solver settings (scene table ``[elastic]``); see :mod:`mscap.newton`."""
 
-    order: int = 1
     tolerance: float = 1e-8
     max_iterations: int = 30
     max_cuts: int = 10
     hessian: str = "auto"
+    order: int = 1
 
 
 @dataclass(frozen=True)

@@ -17,10 +17,10 @@ from . import electrostatic
 from .elastic import ElasticProblem, build_problem
 from .layered import LayeredMesh, mesh_scene
 from .loading import loading_for
-from .newton import ElasticState, NewtonSettings, Operator, solve_pose
+from .newton import ElasticState, Operator, solve_pose
 from .petsc import LinearSolver
 
-__all__ = ["PoseResult", "Simulation", "simulate", "newton_settings"]
+__all__ = ["PoseResult", "Simulation", "simulate"]
 
 log = logging.getLogger(__name__)
 
@@ -59,11 +59,6 @@ class Simulation:
         return np.array([p.capacitance_pF for p in self.poses])
 
 
-def newton_settings(scene) -> NewtonSettings:
-    e = scene.elastic
-    return NewtonSettings(e.tolerance, e.max_iterations, e.max_cuts, e.hessian)
-
-
 def simulate(scene, order: int | None = None, elastic_order: int | None = None,
              mesh: LayeredMesh | None = None, keep_factorisation: bool = False,
              progress: Callable[[str], None] | None = None) -> Simulation:
@@ -92,14 +87,13 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
     operator = Operator(problem) if needs_elastic else None
     solver = LinearSolver("electro_")
     prepared = time.perf_counter()
-    settings = newton_settings(scene)
     results = []
     for i, pose in enumerate(scene.poses):
         t0 = time.perf_counter()
         state = None
         vertices = mesh.points
         if pose.kind != "free":
-            state = solve_pose(problem, loading_for(problem, pose), settings, operator,
+            state = solve_pose(problem, loading_for(problem, pose), scene.elastic, operator,
                                keep_factorisation=keep_factorisation, progress=progress)
             vertices = state.vertices(problem.n_vertices)
         t1 = time.perf_counter()

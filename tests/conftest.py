@@ -5,7 +5,10 @@ from __future__ import annotations
 import copy
 import json
 
+import numpy as np
 import pytest
+
+from mscap.mesh2d import TriMesh
 
 
 def _value(v) -> str:
@@ -79,3 +82,18 @@ def write_scene(tmp_path):
         path.write_text(to_toml(data))
         return path
     return write
+
+
+def grid_trimesh(nx, ny, width, height, capacitor_of_centroid, jitter=0.0, seed=0):
+    """A structured triangulation, interior vertices jittered by ``jitter`` cell sizes."""
+    xs, ys = np.meshgrid(np.linspace(0, width, nx + 1), np.linspace(0, height, ny + 1))
+    points = np.c_[xs.ravel(), ys.ravel()]
+    inner = (points[:, 0] > 0) & (points[:, 0] < width) & (points[:, 1] > 0) & (points[:, 1] < height)
+    cell = np.array([width / nx, height / ny])
+    points[inner] += jitter * cell * np.random.default_rng(seed).uniform(-1, 1, (inner.sum(), 2))
+    index = np.arange(len(points)).reshape(ny + 1, nx + 1)
+    a, b, c, d = (index[:-1, :-1].ravel(), index[:-1, 1:].ravel(),
+                  index[1:, 1:].ravel(), index[1:, :-1].ravel())
+    triangles = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    owner = capacitor_of_centroid(points[triangles].mean(axis=1)).astype(np.int64)
+    return TriMesh(points, triangles, owner)

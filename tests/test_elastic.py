@@ -23,12 +23,11 @@ from mscap.elastic import ElasticError, assemble, build_problem, tet_fields, tot
 from mscap.errors import SceneError
 from mscap.layered import extrude
 from mscap.loading import loading_for
-from mscap.mesh2d import TriMesh
 from mscap.newton import Loading, NewtonSettings, solve_pose
 from mscap.poses import StretchPose
 from mscap.scene import Layer, Material, load_scene
 from mscap.simulate import simulate
-from tests.conftest import SMALL_SCENE, to_toml
+from tests.conftest import SMALL_SCENE, grid_trimesh, to_toml
 
 # Paper §4.2 (as in SMALL_SCENE): the two silicones differ in E but share ν = 0.47.
 CLEAR = Material("clear", 0.57, 0.47, 2.84)
@@ -48,19 +47,8 @@ def grid_mesh(nx, ny, width, height, capacitor_of_centroid=None, jitter=0.25, se
     """A structured triangulation of ``width × height`` mm, interior vertices jittered by
     ``jitter`` cells, extruded with one element per layer. ``capacitor_of_centroid``
     defaults to one plate covering the whole sheet."""
-    xs, ys = np.meshgrid(np.linspace(0, width, nx + 1), np.linspace(0, height, ny + 1))
-    points = np.c_[xs.ravel(), ys.ravel()]
-    inner = (points[:, 0] > 0) & (points[:, 0] < width) & (points[:, 1] > 0) & (points[:, 1] < height)
-    cell = np.array([width / nx, height / ny])
-    points[inner] += jitter * cell * np.random.default_rng(seed).uniform(-1, 1, (inner.sum(), 2))
-    index = np.arange(len(points)).reshape(ny + 1, nx + 1)
-    a, b, c, d = (index[:-1, :-1].ravel(), index[:-1, 1:].ravel(),
-                  index[1:, 1:].ravel(), index[1:, :-1].ravel())
-    triangles = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
-    centroids = points[triangles].mean(axis=1)
-    owner = (np.zeros(len(triangles)) if capacitor_of_centroid is None
-             else capacitor_of_centroid(centroids)).astype(np.int64)
-    return extrude(TriMesh(points, triangles, owner), STACK_MM, 1)
+    owner = capacitor_of_centroid or (lambda centroids: np.zeros(len(centroids)))
+    return extrude(grid_trimesh(nx, ny, width, height, owner, jitter, seed), STACK_MM, 1)
 
 
 def dense(problem, data):

@@ -19,8 +19,9 @@ from mscap import fem, geometry
 from mscap.cli import main
 from mscap.layered import extrude
 from mscap.layout import Layout
-from mscap.mesh2d import TriMesh, triangulate
+from mscap.mesh2d import triangulate
 from mscap.scene import EPSILON0_PF_PER_MM, Layer, Material, MeshSettings
+from tests.conftest import grid_trimesh
 
 CLEAR = Material("clear", 0.57, 0.47, 2.84)
 CARBON = Material("carbon", 1.1, 0.47, 7.0)
@@ -34,21 +35,6 @@ def make_layers(thicknesses=STACK_MM, dielectrics=(CLEAR, CLEAR, CLEAR)):
     d = iter(dielectrics)
     return [Layer(f"layer{i}", kind, t, CARBON, CLEAR) if kind == "conductive" else
             Layer(f"layer{i}", kind, t, next(d)) for i, (kind, t) in enumerate(zip(KINDS, thicknesses))]
-
-
-def grid_trimesh(nx, ny, width, height, capacitor_of_centroid, jitter=0.0, seed=0):
-    """A structured triangulation, interior vertices jittered by ``jitter`` cell sizes."""
-    xs, ys = np.meshgrid(np.linspace(0, width, nx + 1), np.linspace(0, height, ny + 1))
-    points = np.c_[xs.ravel(), ys.ravel()]
-    inner = (points[:, 0] > 0) & (points[:, 0] < width) & (points[:, 1] > 0) & (points[:, 1] < height)
-    cell = np.array([width / nx, height / ny])
-    points[inner] += jitter * cell * np.random.default_rng(seed).uniform(-1, 1, (inner.sum(), 2))
-    index = np.arange(len(points)).reshape(ny + 1, nx + 1)
-    a, b, c, d = (index[:-1, :-1].ravel(), index[:-1, 1:].ravel(),
-                  index[1:, 1:].ravel(), index[1:, :-1].ravel())
-    triangles = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
-    owner = capacitor_of_centroid(points[triangles].mean(axis=1)).astype(np.int64)
-    return TriMesh(points, triangles, owner)
 
 
 def plate_mesh(sheet_mm, centres, size_mm, edge_outline_mm, edge_mm=2.0, per_layer=1):
