@@ -19,7 +19,8 @@ import numpy as np
 
 from .mesh2d import TriMesh
 
-__all__ = ["LayeredMesh", "extrude", "mesh_scene", "level_heights", "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
+__all__ = ["LayeredMesh", "extrude", "mesh_scene", "mesh_elastic", "level_heights", "layer_fractions",
+           "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
 
 #: Layer indices (bottom to top) of the two conductive layers.
 BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER = 1, 3
@@ -85,9 +86,30 @@ class LayeredMesh:
         return tet_volumes(self.points if points is None else points, self.tets)
 
 
+def layer_fractions(mesh: LayeredMesh, thicknesses_mm) -> np.ndarray:
+    """``(M, n_layers)`` exact volume fraction of each stack layer inside each tet.
+
+    A tet of an extruded mesh has its vertices on the two levels of its slab, ``k`` of
+    them on the lower one. Its cross-section at ``s = (z − z_lo)/(z_hi − z_lo)`` is a
+    triangle shrinking to the top (k = 3), a parallelogram ∝ s(1 − s) (k = 2) or a triangle
+    growing from the bottom (k = 1), so the volume fraction below ``s`` is 1 − (1 − s)³,
+    3s² − 2s³ or s³. Slabs between layer interfaces give one-hot rows.
+    """
+    z = mesh.points[mesh.tets, 2]
+    lo, hi = z.min(axis=1), z.max(axis=1)
+    k = np.sum(np.isclose(z, lo[:, None], rtol=0, atol=1e-12 * max(1.0, float(hi.max()))), axis=1)
+    interfaces = np.concatenate([[0.0], np.cumsum(np.asarray(thicknesses_mm, dtype=float))])
+    s = np.clip((interfaces[None, :] - lo[:, None]) / (hi - lo)[:, None], 0.0, 1.0)  # (M, L + 1)
+    below = np.select([k[:, None] == 3, k[:, None] == 2], [1 - (1 - s) ** 3, s * s * (3 - 2 * s)], s ** 3)
+    return np.diff(below, axis=1)
+
+
 def tet_values(mesh: LayeredMesh, layers, value) -> np.ndarray:
     """``value(material)`` of every tet, ``(M,)`` or ``(M, ...)``: the layer's material
-    inside a plate, its ``fill`` (conductive layers) or material elsewhere.
+    inside a plate, its ``fill`` (conductive layers) or material elsewhere. A tet that
+    spans several layers (an elastic mesh coarser than the stack) gets the volume-weighted
+    mean, which for a constant-strain (P1) tet and an energy linear in the material
+    constants is its exact energy.
 
     ``layers`` are :class:`mscap.scene.Layer` objects, bottom to top."""
     from .errors import MeshError
@@ -96,8 +118,10 @@ def tet_values(mesh: LayeredMesh, layers, value) -> np.ndarray:
         raise MeshError(f"{len(layers)} layers given for a mesh with {mesh.layer_of_tet.max() + 1}")
     plate = np.array([value(layer.material) for layer in layers])
     fill = np.array([value(layer.fill or layer.material) for layer in layers])
-    inside = (mesh.capacitor_of_tet >= 0).reshape((-1,) + (1,) * (plate.ndim - 1))
-    return np.where(inside, plate[mesh.layer_of_tet], fill[mesh.layer_of_tet])
+    fractions = layer_fractions(mesh, [layer.thickness_mm for layer in layers])
+    inside = mesh.mesh2d.capacitor_of_triangle[mesh.triangle_of_tet] >= 0
+    return np.where(inside.reshape((-1,) + (1,) * (plate.ndim - 1)),
+                    np.tensordot(fractions, plate, axes=1), np.tensordot(fractions, fill, axes=1))
 
 
 def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
@@ -117,9 +141,19 @@ def level_heights(thicknesses_mm, elements_per_layer: int) -> tuple[np.ndarray, 
     return z, np.repeat(np.arange(len(thicknesses)), elements_per_layer)
 
 
-def extrude(mesh2d: TriMesh, thicknesses_mm, elements_per_layer: int = 1) -> LayeredMesh:
-    """Extrude ``mesh2d`` through layers of the given thicknesses (bottom to top)."""
+def extrude(mesh2d: TriMesh, thicknesses_mm, elements_per_layer: int = 1,
+            slabs: int | None = None) -> LayeredMesh:
+    """Extrude ``mesh2d`` through layers of the given thicknesses (bottom to top).
+
+    With ``slabs``, the levels split the whole stack evenly instead of following the
+    layer interfaces (an elastic mesh; ``layer_of_tet`` is then the layer at the slab's
+    middle and :func:`layer_fractions` gives the exact mix)."""
     z, layer_of_slab = level_heights(thicknesses_mm, elements_per_layer)
+    if slabs is not None:
+        z = np.linspace(0.0, z[-1], slabs + 1)
+        z[-1] = np.sum(thicknesses_mm)
+        interfaces = np.cumsum(thicknesses_mm)[:-1]
+        layer_of_slab = np.searchsorted(interfaces, 0.5 * (z[1:] + z[:-1]))
     n2, n_slabs = len(mesh2d.points), len(layer_of_slab)
     points = np.empty((len(z), n2, 3))
     points[:, :, :2] = mesh2d.points[None]
@@ -148,3 +182,24 @@ def mesh_scene(scene) -> LayeredMesh:
 
     mesh2d = triangulate(scene.sheet_outline_mm, scene.layout, scene.mesh)
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer)
+
+
+def mesh_elastic(scene, mesh: LayeredMesh) -> LayeredMesh:
+    """The elastic mesh of a scene: ``mesh`` itself unless ``[elastic]`` asks for its own
+    edge lengths or elements through the thickness. Its triangulation embeds the same
+    outlines, so every tet lies inside or outside a plate."""
+    from dataclasses import replace
+
+    from .mesh2d import triangulate
+
+    settings = scene.elastic
+    if settings.edge_length_mm is None and settings.elements_through_thickness is None:
+        return mesh
+    mesh2d = mesh.mesh2d
+    if settings.edge_length_mm is not None:
+        outline = settings.edge_length_outline_mm or settings.edge_length_mm
+        mesh2d = triangulate(scene.sheet_outline_mm, scene.layout,
+                             replace(scene.mesh, edge_length_mm=settings.edge_length_mm,
+                                     edge_length_outline_mm=min(outline, settings.edge_length_mm)))
+    return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
+                   slabs=settings.elements_through_thickness)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import tomllib
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -86,13 +87,21 @@ class MeshSettings:
 
 @dataclass(frozen=True)
 class ElasticSettings:
-    """Elastic solver settings (scene table ``[elastic]``); see :mod:`mscap.newton`."""
+    """Elastic solver settings (scene table ``[elastic]``); see :mod:`mscap.newton`.
+
+    ``edge_length_mm``, ``edge_length_outline_mm`` and ``elements_through_thickness``
+    give the elastic problem its own, coarser mesh (:func:`mscap.layered.mesh_elastic`);
+    left out, it shares the electrostatic mesh and its levels."""
 
     tolerance: float = 1e-8
+    step_tolerance: float = 1e-4
     max_iterations: int = 30
     max_cuts: int = 10
     hessian: str = "auto"
     order: int = 1
+    edge_length_mm: float | None = None
+    edge_length_outline_mm: float | None = None
+    elements_through_thickness: int | None = None
 
 
 @dataclass(frozen=True)
@@ -182,6 +191,10 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(path, "elastic.order", f"must be 1 or 2, got {elastic.order!r}")
     if not elastic.tolerance > 0:
         raise SceneError(path, "elastic.tolerance", f"must be > 0, got {elastic.tolerance!r}")
+    for key in ("edge_length_mm", "edge_length_outline_mm", "elements_through_thickness"):
+        value = getattr(elastic, key)
+        if value is not None and not value > 0:
+            raise SceneError(path, f"elastic.{key}", f"must be > 0, got {value!r}")
     if elastic.hessian not in HESSIAN_MODES:
         raise SceneError(path, "elastic.hessian",
                          f"unknown value {elastic.hessian!r}; expected one of {', '.join(HESSIAN_MODES)}")
@@ -363,8 +376,9 @@ def _read_dataclass(t: Table | None, cls):
     if t is None:
         return cls()
     values = {}
+    hints = typing.get_type_hints(cls)
     for field, default in cls().__dict__.items():
-        kind = type(default)
+        kind = type(default) if default is not None else typing.get_args(hints[field])[0]
         values[field] = t.get(field, kind, default, minimum=0 if kind in (int, float) else None)
     t.finish()
     return cls(**values)

@@ -12,13 +12,15 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+import scipy.sparse as sp
 
 from . import electrostatic
 from .elastic import ElasticProblem, build_problem
-from .layered import LayeredMesh, mesh_scene
+from .layered import LayeredMesh, mesh_elastic, mesh_scene
 from .loading import loading_for
 from .newton import ElasticState, Operator, solve_pose
 from .petsc import LinearSolver
+from .transfer import interpolation_matrix
 
 __all__ = ["PoseResult", "Simulation", "simulate"]
 
@@ -44,7 +46,10 @@ class PoseResult:
 
 @dataclass(frozen=True)
 class Simulation:
-    """Every pose of a scene on one mesh."""
+    """Every pose of a scene.
+
+    ``elastic.mesh`` is ``mesh`` itself or the scene's coarser elastic mesh; then
+    ``transfer`` maps elastic nodal displacements to the vertices of ``mesh``."""
 
     scene_name: str
     mesh: LayeredMesh
@@ -52,6 +57,7 @@ class Simulation:
     electro: electrostatic.ElectrostaticProblem
     poses: tuple[PoseResult, ...]
     times: dict
+    transfer: sp.csr_matrix | None = None
 
     @property
     def capacitance_pF(self) -> np.ndarray:
@@ -83,8 +89,13 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
     meshed = time.perf_counter()
     electro = electrostatic.build_problem(mesh, scene.layers, order or scene.mesh.order)
     needs_elastic = any(p.kind != "free" for p in scene.poses)
-    problem = build_problem(mesh, scene.layers, elastic_order or scene.elastic.order) if needs_elastic else None
-    operator = Operator(problem) if needs_elastic else None
+    problem = operator = transfer = None
+    if needs_elastic:
+        elastic_mesh = mesh_elastic(scene, mesh)
+        problem = build_problem(elastic_mesh, scene.layers, elastic_order or scene.elastic.order)
+        operator = Operator(problem)
+        if elastic_mesh is not mesh:
+            transfer = interpolation_matrix(problem, mesh.points)
     solver = LinearSolver("electro_")
     prepared = time.perf_counter()
     results = []
@@ -95,7 +106,10 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
         if pose.kind != "free":
             state = solve_pose(problem, loading_for(problem, pose), scene.elastic, operator,
                                keep_factorisation=keep_factorisation, progress=progress)
-            vertices = state.vertices(problem.n_vertices)
+            if transfer is None:
+                vertices = state.vertices(problem.n_vertices)
+            else:
+                vertices = mesh.points + transfer @ (state.nodes - problem.rest)
         t1 = time.perf_counter()
         caps = electrostatic.solve(electro, vertices, solver=solver)
         t2 = time.perf_counter()
@@ -111,4 +125,4 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
     times = {"mesh": meshed - start, "setup": prepared - meshed, "elastic": elastic_s,
              "electrostatic": sum(r.electrostatic_s for r in results), "total": end - start,
              "elastic_split": split}
-    return Simulation(scene.name, mesh, problem, electro, tuple(results), times)
+    return Simulation(scene.name, mesh, problem, electro, tuple(results), times, transfer)
