@@ -67,9 +67,10 @@ def label(order, h, slabs) -> str:
 
 
 def run(scene, mesh, pose, order, h, slabs) -> dict:
-    elastic = dataclasses.replace(scene.elastic, order=order, edge_length_mm=h,
+    elastic = dataclasses.replace(scene.elastic, order=order, mesh="shared" if h is None else "own",
+                                  edge_length_mm=h or scene.elastic.edge_length_mm,
                                   edge_length_outline_mm=None if h is None else h / 2,
-                                  elements_through_thickness=slabs or None)
+                                  elements_through_thickness=slabs or 0)
     one = dataclasses.replace(scene, elastic=elastic, poses=tuple(p for p in scene.poses if p.name == pose))
     sim = simulate(one, mesh=mesh)
     result, times = sim.poses[0], sim.times

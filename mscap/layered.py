@@ -185,21 +185,21 @@ def mesh_scene(scene) -> LayeredMesh:
 
 
 def mesh_elastic(scene, mesh: LayeredMesh) -> LayeredMesh:
-    """The elastic mesh of a scene: ``mesh`` itself unless ``[elastic]`` asks for its own
-    edge lengths or elements through the thickness. Its triangulation embeds the same
-    outlines, so every tet lies inside or outside a plate."""
+    """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
+    "shared"``, else a triangulation with the same outlines embedded, so every tet lies
+    inside or outside a plate, at ``edge_length_mm`` (outlines: ``edge_length_outline_mm``,
+    default half), extruded in ``elements_through_thickness`` even slabs (0: the levels of
+    ``mesh``)."""
     from dataclasses import replace
 
     from .mesh2d import triangulate
 
     settings = scene.elastic
-    if settings.edge_length_mm is None and settings.elements_through_thickness is None:
+    if settings.mesh == "shared":
         return mesh
-    mesh2d = mesh.mesh2d
-    if settings.edge_length_mm is not None:
-        outline = settings.edge_length_outline_mm or settings.edge_length_mm
-        mesh2d = triangulate(scene.sheet_outline_mm, scene.layout,
-                             replace(scene.mesh, edge_length_mm=settings.edge_length_mm,
-                                     edge_length_outline_mm=min(outline, settings.edge_length_mm)))
+    h = settings.edge_length_mm
+    outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
+    mesh2d = triangulate(scene.sheet_outline_mm, scene.layout,
+                         replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline))
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
-                   slabs=settings.elements_through_thickness)
+                   slabs=settings.elements_through_thickness or None)

@@ -39,6 +39,8 @@ LAYER_KINDS = ("dielectric", "conductive", "dielectric", "conductive", "dielectr
 POSE_KINDS = ("free", "stretch", "poke", "glue")
 #: How Newton treats an indefinite Hessian (:mod:`mscap.newton`).
 HESSIAN_MODES = ("auto", "exact", "projected")
+#: Where the elastic problem lives (``[elastic] mesh``).
+ELASTIC_MESHES = ("own", "shared")
 
 
 @dataclass(frozen=True)
@@ -89,9 +91,11 @@ class MeshSettings:
 class ElasticSettings:
     """Elastic solver settings (scene table ``[elastic]``); see :mod:`mscap.newton`.
 
-    ``edge_length_mm``, ``edge_length_outline_mm`` and ``elements_through_thickness``
-    give the elastic problem its own, coarser mesh (:func:`mscap.layered.mesh_elastic`);
-    left out, it shares the electrostatic mesh and its levels."""
+    ``mesh = "own"`` (default) solves on a mesh of its own (:func:`mscap.layered.mesh_elastic`):
+    the same outlines, ``edge_length_mm`` (outlines: ``edge_length_outline_mm``, default
+    half of it) and ``elements_through_thickness`` even slabs through the whole stack (0:
+    the electrostatic levels, one slab per layer times ``[mesh] elements_per_layer``). ``"shared"`` solves on the electrostatic mesh itself.
+    The defaults come from benchmarks/elastic_error_vs_time.py (docs/elastic.md)."""
 
     tolerance: float = 1e-8
     step_tolerance: float = 1e-4
@@ -99,9 +103,10 @@ class ElasticSettings:
     max_cuts: int = 10
     hessian: str = "auto"
     order: int = 1
-    edge_length_mm: float | None = None
+    mesh: str = "own"
+    edge_length_mm: float = 5.0
     edge_length_outline_mm: float | None = None
-    elements_through_thickness: int | None = None
+    elements_through_thickness: int = 1
 
 
 @dataclass(frozen=True)
@@ -191,7 +196,10 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(path, "elastic.order", f"must be 1 or 2, got {elastic.order!r}")
     if not elastic.tolerance > 0:
         raise SceneError(path, "elastic.tolerance", f"must be > 0, got {elastic.tolerance!r}")
-    for key in ("edge_length_mm", "edge_length_outline_mm", "elements_through_thickness"):
+    if elastic.mesh not in ELASTIC_MESHES:
+        raise SceneError(path, "elastic.mesh",
+                         f"unknown value {elastic.mesh!r}; expected one of {', '.join(ELASTIC_MESHES)}")
+    for key in ("edge_length_mm", "edge_length_outline_mm"):
         value = getattr(elastic, key)
         if value is not None and not value > 0:
             raise SceneError(path, f"elastic.{key}", f"must be > 0, got {value!r}")

@@ -22,7 +22,7 @@ from .newton import ElasticState, Operator, solve_pose
 from .petsc import LinearSolver
 from .transfer import interpolation_matrix
 
-__all__ = ["PoseResult", "Simulation", "simulate"]
+__all__ = ["PoseResult", "Simulation", "simulate", "electro_vertices"]
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +63,18 @@ class Simulation:
     def capacitance_pF(self) -> np.ndarray:
         """``(n_poses, k)`` capacitances."""
         return np.array([p.capacitance_pF for p in self.poses])
+
+    def vertices(self, nodes: np.ndarray) -> np.ndarray:
+        """Electrostatic vertex positions for elastic node positions ``nodes``."""
+        return electro_vertices(self.mesh, self.elastic, self.transfer, nodes)
+
+
+def electro_vertices(mesh: LayeredMesh, problem: ElasticProblem, transfer, nodes: np.ndarray) -> np.ndarray:
+    """The electrostatic mesh's vertices moved by the elastic displacement ``nodes − rest``
+    (the first ``n_vertices`` nodes on a shared mesh, ``transfer`` otherwise)."""
+    if transfer is None:
+        return nodes[:len(mesh.points)]
+    return mesh.points + transfer @ (nodes - problem.rest)
 
 
 def simulate(scene, order: int | None = None, elastic_order: int | None = None,
@@ -106,10 +118,7 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
         if pose.kind != "free":
             state = solve_pose(problem, loading_for(problem, pose), scene.elastic, operator,
                                keep_factorisation=keep_factorisation, progress=progress)
-            if transfer is None:
-                vertices = state.vertices(problem.n_vertices)
-            else:
-                vertices = mesh.points + transfer @ (state.nodes - problem.rest)
+            vertices = electro_vertices(mesh, problem, transfer, state.nodes)
         t1 = time.perf_counter()
         caps = electrostatic.solve(electro, vertices, solver=solver)
         t2 = time.perf_counter()

@@ -17,7 +17,7 @@ from mscap.layered import extrude, layer_fractions, mesh_elastic, mesh_scene
 from mscap.loading import loading_for
 from mscap.newton import NewtonSettings, solve_pose
 from mscap.poses import StretchPose
-from mscap.scene import load_scene
+from mscap.scene import ElasticSettings, load_scene
 from mscap.simulate import simulate
 from mscap.transfer import interpolation_matrix, locate
 from tests.conftest import grid_trimesh, to_toml
@@ -147,6 +147,7 @@ def test_scene_with_its_own_elastic_mesh_pokes_like_the_shared_one(tmp_path):
     # whole stack: about a quarter of the nodes, the same physics. Measured: shared
     # +3.3 %, own mesh within 0.2 % of it.
     data = poke_scene_dict()
+    data["elastic"] = {"mesh": "shared"}
     path = tmp_path / "shared.toml"
     path.write_text(to_toml(data))
     shared = simulate(load_scene(path))
@@ -171,8 +172,9 @@ def test_scene_with_its_own_elastic_mesh_pokes_like_the_shared_one(tmp_path):
 
 @pytest.mark.parametrize("key, value, message", [
     ("edge_length_mm", 0.0, "must be > 0, got 0.0"),
-    ("elements_through_thickness", 0, "must be > 0, got 0"),
+    ("elements_through_thickness", -1, "must be >= 0, got -1"),
     ("edge_length_mm", "fine", "expected a number"),
+    ("mesh", "fine", "unknown value 'fine'; expected one of own, shared"),
 ])
 def test_bad_elastic_mesh_settings_name_the_key(write_scene, small_scene_dict, key, value, message):
     small_scene_dict["elastic"] = {key: value}
@@ -180,20 +182,46 @@ def test_bad_elastic_mesh_settings_name_the_key(write_scene, small_scene_dict, k
         load_scene(write_scene(small_scene_dict))
 
 
-def test_mesh_elastic_shares_what_the_scene_does_not_override(small_scene_dict, write_scene):
+def test_mesh_elastic_builds_what_the_scene_asks_for(small_scene_dict, write_scene):
+    small_scene_dict["elastic"] = {"mesh": "shared"}
     scene = load_scene(write_scene(small_scene_dict))
     mesh = mesh_scene(scene)
-    assert mesh_elastic(scene, mesh) is mesh  # no [elastic] mesh keys: the same mesh
-    thick = dataclasses.replace(scene, elastic=dataclasses.replace(scene.elastic, elements_through_thickness=2))
-    own = mesh_elastic(thick, mesh)
-    assert own.mesh2d is mesh.mesh2d and len(own.level_z_mm) == 3
-    assert own.level_z_mm[-1] == mesh.level_z_mm[-1]
-    coarser = dataclasses.replace(scene, elastic=dataclasses.replace(scene.elastic, edge_length_mm=6.0))
-    own = mesh_elastic(coarser, mesh)
-    np.testing.assert_array_equal(own.level_z_mm, mesh.level_z_mm)
+    assert mesh_elastic(scene, mesh) is mesh
+    # The defaults: its own mesh, one element through the whole stack.
+    default = dataclasses.replace(scene, elastic=ElasticSettings())
+    own = mesh_elastic(default, mesh)
+    np.testing.assert_array_equal(own.level_z_mm, [0.0, mesh.level_z_mm[-1]])
     assert len(own.mesh2d.points) < 0.5 * len(mesh.mesh2d.points)
-    # The outlines are embedded: the plate area is the same on both meshes.
+    # 0 through the thickness: the electrostatic levels.
+    levels = dataclasses.replace(scene, elastic=ElasticSettings(edge_length_mm=6.0, elements_through_thickness=0))
+    np.testing.assert_array_equal(mesh_elastic(levels, mesh).level_z_mm, mesh.level_z_mm)
+    # The outlines are embedded: the plate areas are the same on both meshes.
     for m in (mesh, own):
         areas = m.mesh2d.areas()
         plates = [areas[m.mesh2d.capacitor_of_triangle == j].sum() for j in range(2)]
         np.testing.assert_allclose(plates, [120.0, 84.0], rtol=1e-12)  # shoelace areas
+
+
+@pytest.mark.parametrize("elastic", [{"mesh": "shared"}, {"edge_length_mm": 6.0}], ids=["shared", "own"])
+def test_simulate_export_writes_the_fields_on_their_meshes(write_scene, small_scene_dict, tmp_path, capsys, elastic):
+    import meshio
+
+    from mscap.cli import main
+
+    small_scene_dict["poses"] = [{"name": "pull", "kind": "stretch", "mode": "uniaxial", "stretch": 1.2,
+                                  "grips": "clamp"}]
+    small_scene_dict["elastic"] = elastic
+    out = tmp_path / "vtu"
+    assert main(["simulate", str(write_scene(small_scene_dict)), "--export", str(out), "-q"]) == 0
+    pose = meshio.read(out / "pull.vtu")
+    assert {"displacement", "phi_0", "phi_1"} <= set(pose.point_data)
+    # Grips at x = 0 and 30 mm move by ∓3 mm (λ = 1.2 about the centre), on either mesh.
+    x, u = pose.points[:, 0] - pose.point_data["displacement"][:, 0], pose.point_data["displacement"][:, 0]
+    np.testing.assert_allclose(u[np.isclose(x, 0.0)], -3.0, rtol=1e-12)
+    np.testing.assert_allclose(u[np.isclose(x, 30.0)], 3.0, rtol=1e-12)
+    own = "mesh" not in elastic
+    assert (out / "pull_elastic.vtu").exists() == own
+    fields = meshio.read(out / "pull_elastic.vtu") if own else pose
+    j = fields.cell_data["J"][0]
+    assert len(j) == len(fields.cells[0].data) and 0.8 < j.min() and j.max() < 1.2
+    assert fields.cell_data["von_mises"][0].max() > 0

@@ -25,7 +25,9 @@ def add_parser(sub) -> None:
     p.add_argument("--order", type=int, choices=(1, 2), help="electrostatic element order (default: the scene's)")
     p.add_argument("--elastic-order", type=int, choices=(1, 2), help="elastic element order (default: the scene's)")
     p.add_argument("--poses", help="comma-separated pose names to run (default: all)")
-    p.add_argument("--export", metavar="DIR", help="write DIR/<pose>.vtu: displacement, J, stress, φ")
+    p.add_argument("--export", metavar="DIR", help="write DIR/<pose>.vtu: displacement, J, stress, φ "
+                                                   "(J and stress in DIR/<pose>_elastic.vtu when the "
+                                                   "elastic problem has its own mesh)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(run=run)
@@ -55,7 +57,7 @@ def run(args) -> int:
         out = Path(args.export)
         out.mkdir(parents=True, exist_ok=True)
         for result in sim.poses:
-            files.append(_export(out / f"{result.name}.vtu", sim, result))
+            files.extend(_export(out, sim, result))
 
     iterations = [r.state.newton_iterations if r.state else 0 for r in sim.poses]
     if args.json:
@@ -90,18 +92,31 @@ def run(args) -> int:
     return 0
 
 
-def _export(path: Path, sim, result) -> Path:
-    mesh = sim.mesh
+def _export(directory: Path, sim, result) -> list[Path]:
+    """``<pose>.vtu`` on the electrostatic mesh (displacement, φ_j; J and stress too when
+    the elastic problem shares the mesh) and, for an elastic problem on its own mesh,
+    ``<pose>_elastic.vtu`` with its displacement, J and stress."""
+    mesh, problem = sim.mesh, sim.elastic
     point_data = {"displacement": result.vertices - mesh.points}
     phi = result.capacitances.top_potentials[:len(mesh.points)]
     for j in range(phi.shape[1]):
         point_data[f"phi_{j}"] = phi[:, j]
     cell_data = {}
-    if sim.elastic is not None:
-        nodes = result.state.nodes if result.state else sim.elastic.rest
-        j, stress = tet_fields(sim.elastic, nodes)
+    written = []
+    if problem is not None:
+        nodes = result.state.nodes if result.state else problem.rest
+        j, stress = tet_fields(problem, nodes)
         deviator = stress - np.trace(stress, axis1=1, axis2=2)[:, None, None] * np.eye(3) / 3
-        cell_data = {"J": j, "stress": stress.reshape(-1, 9),
-                     "von_mises": np.sqrt(1.5 * np.einsum("mij,mij->m", deviator, deviator))}
+        fields = {"J": j, "stress": stress.reshape(-1, 9),
+                  "von_mises": np.sqrt(1.5 * np.einsum("mij,mij->m", deviator, deviator))}
+        if sim.transfer is None:
+            cell_data = fields
+        else:
+            path = directory / f"{result.name}_elastic.vtu"
+            vertices = nodes[:problem.n_vertices]
+            write_mesh(path, problem.mesh, points=vertices,
+                       point_data={"displacement": vertices - problem.mesh.points}, cell_data=fields)
+            written.append(path)
+    path = directory / f"{result.name}.vtu"
     write_mesh(path, mesh, points=result.vertices, point_data=point_data, cell_data=cell_data)
-    return path
+    return [path] + written
