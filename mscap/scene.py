@@ -190,7 +190,7 @@ def load_scene(path: str | Path) -> Scene:
     layout, min_gap = _read_capacitors(root.table("capacitors"), sheet, mesh)
     objects = _read_objects(root, path)
     poses = _read_poses(root, objects)
-    _check_glue_coverage(path, poses, sheet)
+    _check_pose_geometry(path, poses, sheet)
     elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
     if elastic.order not in (1, 2):
         raise SceneError(path, "elastic.order", f"must be 1 or 2, got {elastic.order!r}")
@@ -354,9 +354,17 @@ def _read_objects(root: Table, path: str) -> dict:
     return read_objects(t, path)
 
 
-def _check_glue_coverage(path: str, poses: tuple, sheet: np.ndarray) -> None:
-    """Every glued pose's object must cover the whole placed sheet."""
+def _check_pose_geometry(path: str, poses: tuple, sheet: np.ndarray) -> None:
+    """Every glued pose's object must cover the whole placed sheet; every ball must be
+    centred over the sheet."""
     for i, pose in enumerate(poses):
+        if pose.kind == "poke":
+            lo, hi = sheet.min(axis=0), sheet.max(axis=0)
+            x, y = pose.center_mm
+            if not (lo[0] < x < hi[0] and lo[1] < y < hi[1]):
+                raise SceneError(path, f"poses[{i}].center_mm",
+                                 f"({x:g}, {y:g}) mm lies outside the sheet "
+                                 f"[{lo[0]:g}, {hi[0]:g}] × [{lo[1]:g}, {hi[1]:g}] mm")
         if pose.kind == "glue":
             from .glue import check_covers
 

@@ -553,7 +553,10 @@ def test_an_inverting_boundary_path_raises_instead_of_returning_nan():
      "must be > 0, got 0.0"),
     ({"kind": "poke", "center_mm": [10.0, 10.0], "radius_mm": -5.0, "depth_mm": 2.0}, "radius_mm",
      "must be > 0, got -5.0"),
-], ids=["mode", "grips", "biaxial-one-ratio", "negative-stretch", "edge", "zero-radius", "negative-radius"])
+    ({"kind": "poke", "center_mm": [10.0, 25.0], "radius_mm": 5.0, "depth_mm": 2.0}, "center_mm",
+     "(10, 25) mm lies outside the sheet [0, 30] × [0, 20] mm"),
+], ids=["mode", "grips", "biaxial-one-ratio", "negative-stretch", "edge", "zero-radius", "negative-radius",
+        "ball-off-sheet"])
 def test_bad_pose_names_file_key_and_value(write_scene, pose, key, message):
     path = write_scene(scene_dict(poses=[{"name": "rest", "kind": "free"}, {"name": "p"} | pose]))
     with pytest.raises(SceneError) as info:

@@ -74,6 +74,11 @@ def run(args) -> int:
     k = sim.electro.k
     print(f"scene {scene.name} ({scene.path}): {len(sim.poses)} poses, {k} capacitors, "
           f"{len(sim.mesh.points)} vertices, {len(sim.mesh.tets)} tets")
+    if sim.elastic is not None:
+        where = "the electrostatic mesh" if sim.transfer is None else (
+            f"its own mesh of {len(sim.elastic.mesh.tets)} tets, {len(sim.elastic.mesh.level_z_mm) - 1} "
+            f"through the stack")
+        print(f"  elastic: P{sim.elastic.order}, {sim.elastic.n_dofs} dofs on {where}")
     header = "".join(f"{'C' + str(j) + '_pF':>10}" for j in range(k))
     print(f"  {'pose':<16}{header} {'newton':>7} {'steps':>6} {'elastic_s':>10} {'electro_s':>10}")
     for r in sim.poses:
