@@ -153,23 +153,30 @@ class SeparationBarrier(_Term):
         return (np.vstack(polygons), owner, start + (local + 1) % size,
                 start + (local - 1) % size, sizes)
 
-    def _pairs(self, x, owner, nxt, prv, reach, same_outline):
+    def _pairs(self, x, owner, nxt, prv, reach, same_outline, v=None, keep=0.0):
         """Vertex–edge pairs ``(p, e)`` (edge e runs from vertex e to ``nxt[e]``) that may
-        come within ``shift + reach``; pairs within one outline only if ``same_outline``."""
+        come within ``shift + reach``; pairs within one outline only if ``same_outline``.
+        Given velocities ``v``, also drop vertex pairs too far apart for their relative
+        speed to close (1 − keep) of it: a pair (p, ab) is needed only if (1 − keep)(d − g)
+        < L = ‖v_p − v_j‖ for the faster endpoint j, and d ≥ ‖x_p − x_j‖ − longest edge."""
         sheet = owner[-1]
         cap = owner != sheet
         longest = np.linalg.norm(x[nxt[cap]] - x[cap], axis=1).max()
-        i, j = cKDTree(x).query_pairs(longest + max(self.gap_mm, self.margin_mm) + reach,
-                                      output_type="ndarray").T
+        base = longest + max(self.gap_mm, self.margin_mm)
+        i, j = cKDTree(x).query_pairs(base + reach, output_type="ndarray").T
+        if v is not None:
+            apart = np.linalg.norm(x[i] - x[j], axis=1) - base
+            closing = np.linalg.norm(v[i] - v[j], axis=1) / (1 - keep)
+            i, j = i[apart < closing], j[apart < closing]
         p, e = np.r_[i, i, j, j], np.r_[j, prv[j], i, prv[i]]
         p, e = p[cap[e]], e[cap[e]]  # sheet edges are added below, all of them
         on_sheet = np.flatnonzero(~cap)
         p = np.r_[p, np.repeat(np.flatnonzero(cap), len(on_sheet))]
         e = np.r_[e, np.tile(on_sheet, cap.sum())]
-        keep = owner[p] != owner[e]
+        use = owner[p] != owner[e]
         if same_outline:
-            keep |= (owner[p] == owner[e]) & cap[p] & (p != e) & (p != nxt[e])
-        code = np.unique(p[keep] * len(x) + e[keep])
+            use |= (owner[p] == owner[e]) & (p != e) & (p != nxt[e])
+        code = np.unique(p[use] * len(x) + e[use])
         return code // len(x), code % len(x)
 
     def _shift(self, owner, p, e):
@@ -228,7 +235,7 @@ class SeparationBarrier(_Term):
         speed = np.linalg.norm(v, axis=1).max()
         if speed == 0:
             return 1.0
-        p, e = self._pairs(x, owner, nxt, prv, 2 * speed / (1 - keep), True)
+        p, e = self._pairs(x, owner, nxt, prv, 2 * speed / (1 - keep), True, v, keep)
         b = nxt[e]
         d, _, _ = _point_edge(x[p], x[e], x[b])
         shift = self._shift(owner, p, e)
@@ -238,14 +245,20 @@ class SeparationBarrier(_Term):
                                np.linalg.norm(v[p] - v[b], axis=1))
         near = lipschitz > d - target  # may reach the target within α ≤ 1
         p, e, b, target, lipschitz = p[near], e[near], b[near], target[near], lipschitz[near]
-        alpha = np.zeros(len(p))
+        alpha, ceiling = np.zeros(len(p)), 1.0
         for _ in range(iterations):
-            if not len(p) or alpha.min() >= 1:
+            # A pair that has stalled caps the answer; pairs already past the cap can't lower it.
+            live = alpha < ceiling
+            p, e, b, target, lipschitz, alpha = (a[live] for a in (p, e, b, target, lipschitz, alpha))
+            if not len(p):
                 break
             d, _, _ = _point_edge(x[p] + alpha[:, None] * v[p], x[e] + alpha[:, None] * v[e],
                                   x[b] + alpha[:, None] * v[b])
-            alpha = np.minimum(1.0, alpha + 0.99 * np.maximum(d - target, 0.0) / lipschitz)
-        return float(alpha.min()) if len(p) else 1.0
+            step = 0.99 * np.maximum(d - target, 0.0) / lipschitz
+            alpha = alpha + step
+            if (step < 1e-9).any():
+                ceiling = min(ceiling, float(alpha[step < 1e-9].min()))
+        return min(ceiling, float(alpha.min())) if len(alpha) else ceiling
 
 
 @dataclass(frozen=True)
