@@ -178,3 +178,24 @@ def _projected_block(G, f_inv, log_j, mu, lam) -> np.ndarray:
     values, vectors = np.linalg.eigh(tangent)
     tangent = (vectors * np.maximum(values, 0.0)[:, None, :]) @ np.swapaxes(vectors, 1, 2)
     return np.einsum("maj,mijkl,mbl->ikabm", G, tangent.reshape(m, 3, 3, 3, 3), G, optimize=True)
+
+
+def piola_differential(F: np.ndarray, L: np.ndarray, mu: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """The directional derivative ``dP[L] = A : L`` of the first Piola–Kirchhoff stress
+    (MPa), ``(M, 3, 3)``, for ``(M, 3, 3)`` deformation gradients ``F`` (J > 0) and
+    directions ``L``.
+
+    From ``P = μ (F − F⁻ᵀ) + λ ln J F⁻ᵀ`` with ``dF⁻ᵀ = −F⁻ᵀ Lᵀ F⁻ᵀ`` and
+    ``d ln J = tr(F⁻¹ L)``:
+
+        dP[L] = μ L + (μ − λ ln J) F⁻ᵀ Lᵀ F⁻ᵀ + λ tr(F⁻¹ L) F⁻ᵀ.
+    """
+    J, inv = det_and_inverse(F)
+    inv_t = np.swapaxes(inv, 1, 2)
+    turned = inv_t @ np.swapaxes(L, 1, 2) @ inv_t
+    trace = np.einsum("mij,mji->m", inv, L)
+    return (mu[:, None, None] * L + (mu - lam * np.log(J))[:, None, None] * turned
+            + (lam * trace)[:, None, None] * inv_t)
+
+
+__all__ += ["piola_differential"]
