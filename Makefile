@@ -6,7 +6,7 @@
 SHELL := /bin/bash
 VENV  ?= .venv
 PY    := $(VENV)/bin/python
-SCENE ?= jobs/grid3x3.toml
+SCENE ?= jobs/poking.toml
 OUT   ?= out
 
 # Debian packages: PETSc 3.18 + petsc4py, mpi4py + OpenMPI 4.1, venv support, and OpenBLAS
@@ -22,8 +22,8 @@ export OMPI_MCA_rmaps_base_oversubscribe := 1
 .PHONY: run test install system-packages clean
 
 run: install
-	@echo "main job: mesh the default scene $(SCENE) (the multi-start service replaces this later)"
-	$(VENV)/bin/mscap mesh $(SCENE) -o $(OUT)/$(basename $(notdir $(SCENE)))
+	@echo "main job: simulate every pose of the default scene $(SCENE) (the multi-start service replaces this later)"
+	$(VENV)/bin/mscap simulate $(SCENE) --export $(OUT)/$(basename $(notdir $(SCENE)))
 
 test: install
 	$(PY) -m pytest -q
