@@ -195,7 +195,7 @@ def assemble(problem: ElasticProblem, x: np.ndarray, hessian: bool = True,
     An inverted element (J ≤ 0 at a quadrature point) gives ``energy = inf`` and no
     Hessian. ``project`` makes every element Hessian positive semi-definite."""
     el = problem.element
-    nodes, nb = problem.nodes, problem.nodes.shape[1]
+    nodes = problem.nodes
     energy, min_j = 0.0, np.inf
     gradient = np.zeros((problem.n_nodes, 3))
     blocks = np.zeros((9, len(problem.indices) // 9)) if hessian else None

@@ -145,6 +145,11 @@ class LinearSolver:
             out[:, j] = x.getArray()
         return out.reshape(rhs.shape)
 
+    def destroy(self) -> None:
+        """Free the KSP (and the factorisation it holds) now rather than at exit."""
+        self.ksp.destroy()
+        self._mat = None
+
     @property
     def description(self) -> str:
         pc = self.ksp.getPC()

@@ -16,7 +16,6 @@ import tomllib
 import typing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -111,13 +110,32 @@ class ElasticSettings:
 
 @dataclass(frozen=True)
 class OptimizerSettings:
-    """Design-optimisation settings (used from the optimisation issue on)."""
+    """Design-optimisation settings (scene table ``[optimizer]``; :mod:`mscap.optimize`).
+
+    ``tau_pF2``, ``barrier_weight``, ``smoothing_weight``: the objective
+    (:func:`mscap.objective.layout_objective`). ``max_iterations``: accepted L-BFGS steps
+    per cascade level; ``cascade_levels``: doublings of the controls after the first
+    level converges. ``control_spacing_mm``: arc length between control points on the
+    outlines; ``skinning``: ``"bbw"`` or ``"harmonic"`` weights. Convergence of a level:
+    J falls by less than ``relative_tolerance`` · max(|J|, 1) in a step, or ‖dJ/dq‖ drops
+    below ``gradient_tolerance`` times its value at the level's start. Steps:
+    steepest-descent steps start at ``first_step_mm`` (largest control displacement) and
+    double while accepted whole; no step moves a control more than ``max_step_mm``.
+    Remesh when a 2D angle drops below ``remesh_angle_deg`` (or below half the fresh
+    mesh's smallest angle, if that is less)."""
 
     tau_pF2: float = 1.0
     barrier_weight: float = 1.0
     smoothing_weight: float = 1e-3
     max_iterations: int = 100
     cascade_levels: int = 1
+    control_spacing_mm: float = 10.0
+    skinning: str = "bbw"
+    gradient_tolerance: float = 1e-4
+    relative_tolerance: float = 1e-4
+    first_step_mm: float = 1.0
+    max_step_mm: float = 2.0
+    remesh_angle_deg: float = 10.0
 
 
 @dataclass(frozen=True)

@@ -112,21 +112,26 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
     solver = LinearSolver("electro_")
     prepared = time.perf_counter()
     results = []
-    for i, pose in enumerate(scene.poses):
-        t0 = time.perf_counter()
-        state = None
-        vertices = mesh.points
-        if pose.kind != "free":
-            state = solve_pose(problem, loading_for(problem, pose), scene.elastic, operator,
-                               keep_factorisation=keep_factorisation, progress=progress)
-            vertices = electro_vertices(mesh, problem, transfer, state.nodes)
-        t1 = time.perf_counter()
-        caps = electrostatic.solve(electro, vertices, solver=solver)
-        t2 = time.perf_counter()
-        results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, t1 - t0, t2 - t1))
-        say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: C = "
-            f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
-            f"(elastic {t1 - t0:.2f} s, electrostatic {t2 - t1:.2f} s)")
+    try:
+        for i, pose in enumerate(scene.poses):
+            t0 = time.perf_counter()
+            state = None
+            vertices = mesh.points
+            if pose.kind != "free":
+                state = solve_pose(problem, loading_for(problem, pose), scene.elastic, operator,
+                                   keep_factorisation=keep_factorisation, progress=progress)
+                vertices = electro_vertices(mesh, problem, transfer, state.nodes)
+            t1 = time.perf_counter()
+            caps = electrostatic.solve(electro, vertices, solver=solver)
+            t2 = time.perf_counter()
+            results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, t1 - t0, t2 - t1))
+            say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: C = "
+                f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
+                f"(elastic {t1 - t0:.2f} s, electrostatic {t2 - t1:.2f} s)")
+    finally:  # PETSc objects free their memory only when destroyed
+        solver.destroy()
+        if operator is not None:
+            operator.destroy()
     end = time.perf_counter()
     elastic_s = sum(r.elastic_s for r in results)
     split = {key: sum(r.state.times[key] for r in results if r.state) for key in

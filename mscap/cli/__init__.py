@@ -9,18 +9,18 @@ import sys
 
 # One thread per process unless the user says otherwise: MPI ranks are mscap's
 # parallelism, and idle OpenMP/BLAS threads spin against them (on 2 cores a threaded
-# MUMPS factorisation of the poking scene ran 15 % slower with 5x the system time).
+# MUMPS factorisation of the poking scene ran 15 % slower with 10x the system time).
 # Set before numpy loads OpenBLAS.
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from .. import __version__
 from ..errors import MscapError
-from . import capacitance, mesh, simulate
+from . import capacitance, mesh, optimize, simulate
 
 __all__ = ["main"]
 
-_COMMANDS = (mesh, capacitance, simulate)
+_COMMANDS = (mesh, capacitance, simulate, optimize)
 
 
 def build_parser() -> argparse.ArgumentParser:
