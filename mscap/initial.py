@@ -52,8 +52,8 @@ def _fits(square: np.ndarray, placed: list, sheet: np.ndarray, gap: float) -> bo
     return True
 
 
-def random_layout(scene, k: int, seed: int, clearance: float = 2.0, attempts: int = 200,
-                  tries_per_shape: int = 200) -> Layout:
+def random_layout(scene, k: int, seed: int, clearance: float = 2.0, attempts: int = 20,
+                  tries_per_shape: int = 50) -> Layout:
     """k non-overlapping squares by seeded rejection sampling."""
     rng = np.random.default_rng(seed)
     sheet = scene.sheet_outline_mm

@@ -16,11 +16,11 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 
 from .. import __version__
 from ..errors import MscapError
-from . import capacitance, mesh, optimize, simulate
+from . import capacitance, inspect, merge, mesh, optimize, run, simulate
 
 __all__ = ["main"]
 
-_COMMANDS = (mesh, capacitance, simulate, optimize)
+_COMMANDS = (mesh, capacitance, simulate, optimize, run, inspect, merge)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,55 @@
+"""``mpirun -n N mscap run SCENE -o results.h5``: the multi-start design service."""
+
+from __future__ import annotations
+
+import sys
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("run", help="multi-start layout optimisation over MPI into one HDF5 file",
+                       description="Run every start (k from the scene's k_min to k_max, starts_per_k "
+                                   "each, Lloyd or random initial layouts) of the scene's multi-start; "
+                                   "rank 0 schedules and writes, the other ranks optimise. Rerunning "
+                                   "on an existing file completes only the missing runs.")
+    p.add_argument("scene", help="scene file (jobs/*.toml)")
+    p.add_argument("-o", "--output", default="results.h5", help="HDF5 results file (default results.h5)")
+    p.add_argument("--k-min", type=int, help="only starts with k >= this")
+    p.add_argument("--k-max", type=int, help="only starts with k <= this")
+    p.add_argument("--seeds", metavar="A:B", help="only start indices A..B-1 within each k")
+    p.add_argument("--max-iterations", type=int, help="L-BFGS iterations per level (default: the scene's)")
+    p.add_argument("--force", action="store_true", help="start the file over even if it holds another scene")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    from mpi4py import MPI
+
+    from ..multistart import run_multistart
+    from ..petsc import petsc, set_scene_options
+    from ..scene import load_scene
+    from ..selection import configurations
+
+    comm = MPI.COMM_WORLD
+    petsc(args.petsc_args)
+    scene = load_scene(args.scene)
+    set_scene_options(scene.petsc_options)
+    index_of = {c.id: i % max(scene.multistart.starts_per_k, 1) for i, c in enumerate(configurations(scene))}
+    lo, hi = 0, None
+    if args.seeds:
+        a, _, b = args.seeds.partition(":")
+        lo, hi = int(a or 0), (int(b) if b else None)
+
+    def keep(config) -> bool:
+        i = index_of[config.id]
+        return ((args.k_min is None or config.k >= args.k_min) and (args.k_max is None or config.k <= args.k_max)
+                and i >= lo and (hi is None or i < hi))
+
+    rank = comm.Get_rank()
+    say = None if args.quiet or rank else (lambda m: print(m, file=sys.stderr, flush=True))
+    summary = run_multistart(scene, args.output, comm, force=args.force, select_configs=keep,
+                             max_iterations=args.max_iterations, progress=say)
+    if rank == 0 and not args.quiet:
+        print(f"{args.output}: {summary['runs_done']} runs this time ({summary['runs_failed']} failed)"
+              + ("; stopped early" if summary["stopped"] else ""))
+    return 0

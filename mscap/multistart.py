@@ -1,0 +1,188 @@
+"""The multi-start service: many optimisation starts farmed out over MPI, one HDF5 file.
+
+Rank 0 is the master: it opens the store (:mod:`mscap.store`), lists the start
+configurations the file does not hold yet (:func:`mscap.selection.configurations`) and
+hands them out one at a time; every other rank is a worker that runs one start
+(:func:`run_start`) on ``PETSc.COMM_SELF`` and sends back a :class:`~mscap.store.RunRecord`.
+Scheduling is dynamic — a worker gets the next configuration as soon as it returns one —
+and only the master writes, flushing after every run, so a killed job loses at most the
+runs in flight. With one rank (no ``mpirun``) the master runs every start itself.
+
+A start's result depends only on the scene and its (k, seed, init): never on the rank,
+the number of ranks or the order in which runs finish. A start that raises is stored as
+failed with its error text; the others go on. SIGTERM (what SLURM sends at the time
+limit) and Ctrl-C stop the master from handing out more work; it records what finished,
+writes the selection and aborts the workers still busy.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import time
+import traceback
+from dataclasses import replace
+from typing import Callable
+
+from .selection import StartConfig, configurations, select
+from .store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
+    write_selection
+
+__all__ = ["TAGS", "run_start", "run_multistart"]
+
+log = logging.getLogger(__name__)
+
+#: Message tags between master and workers, in one place.
+TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4}
+
+
+def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None):
+    """Run one start and return its :class:`~mscap.store.RunRecord` (failed, with the
+    error text, if anything in it raises)."""
+    from .design import build_design
+    from .initial import initial_layout
+    from .optimize import optimize
+
+    start = time.perf_counter()
+    try:
+        layout = initial_layout(scene, config.k, config.seed, config.init)
+        design = build_design(replace(scene, layout=layout))
+        result = optimize(design, max_iterations=max_iterations)
+        return record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
+                                  time.perf_counter() - start, rank)
+    except Exception as exc:  # a failed start is a result, not a crash of the job
+        log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
+        return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
+                             time.perf_counter() - start, rank)
+
+
+class _Stop:
+    """Turns SIGTERM into a flag the master polls (SLURM's time limit)."""
+
+    def __init__(self):
+        self.requested = False
+        self._previous = signal.signal(signal.SIGTERM, self._handle)
+
+    def _handle(self, signum, frame):
+        self.requested = True
+
+    def restore(self):
+        signal.signal(signal.SIGTERM, self._previous)
+
+
+def run_multistart(scene, path: str, comm=None, force: bool = False,
+                   select_configs: Callable[[StartConfig], bool] | None = None,
+                   max_iterations: int | None = None,
+                   progress: Callable[[str], None] | None = None) -> dict | None:
+    """Run every start of ``scene`` not yet in the file ``path``.
+
+    Parameters
+    ----------
+    comm
+        An mpi4py communicator (default ``MPI.COMM_WORLD``); rank 0 is the master.
+    force
+        Start the file over even if it holds another scene's runs.
+    select_configs
+        Keep only the configurations for which this returns True (k range, seed range).
+    max_iterations
+        Override the scene's ``[optimizer] max_iterations`` (tests, quick runs).
+    progress
+        Called by the master with one line per finished run.
+
+    Returns the master's summary ``{"runs_done", "runs_failed", "stopped"}`` on rank 0,
+    ``None`` on workers.
+    """
+    if comm is None:
+        from mpi4py import MPI
+
+        comm = MPI.COMM_WORLD
+    if comm.Get_rank() != 0:
+        _worker(scene, comm, max_iterations)
+        return None
+    return _master(scene, path, comm, force, select_configs, max_iterations, progress or (lambda m: None))
+
+
+def _worker(scene, comm, max_iterations) -> None:
+    from mpi4py import MPI
+
+    rank = comm.Get_rank()
+    status = MPI.Status()
+    comm.send(None, dest=0, tag=TAGS["ready"])
+    while True:
+        config = comm.recv(source=0, tag=MPI.ANY_TAG, status=status)
+        if status.Get_tag() == TAGS["stop"]:
+            return
+        comm.send(run_start(scene, config, rank, max_iterations), dest=0, tag=TAGS["result"])
+
+
+def _master(scene, path, comm, force, select_configs, max_iterations, say) -> dict:
+    size = comm.Get_size()
+    try:
+        store = open_store(path, scene, mpi_size=size, force=force)
+    except Exception:
+        for worker in range(1, size):  # let the workers go before the error reaches main()
+            comm.send(None, dest=worker, tag=TAGS["stop"])
+        raise
+    stop = _Stop()
+    done = failed = 0
+    try:
+        finished = finished_ids(store)
+        todo = [c for c in configurations(scene)
+                if c.id not in finished and (select_configs is None or select_configs(c))]
+        total, started = len(todo), time.perf_counter()
+        say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
+            f"worker{'s' if size > 2 else ''}")
+
+        def record(rec) -> None:
+            nonlocal done, failed
+            write_run(store, rec)
+            done += 1
+            failed += not rec.ok
+            elapsed = time.perf_counter() - started
+            eta = elapsed / done * (total - done)
+            metric = f"{rec.metric:.4g} pF" if rec.ok else rec.error.splitlines()[0][:80]
+            say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
+                f"{total - done} left, ETA {eta:.0f} s")
+
+        if size == 1:
+            for config in todo:
+                if stop.requested:
+                    break
+                record(run_start(scene, config, 0, max_iterations))
+        else:
+            _farm(comm, todo, record, stop)
+    except KeyboardInterrupt:
+        stop.requested = True
+    finally:
+        stop.restore()
+        selection = select(run_summaries(store), scene.multistart.plateau_tol,
+                           range(scene.multistart.k_min, scene.multistart.k_max + 1))
+        write_selection(store, selection)
+        store.close()
+    if stop.requested and size > 1:
+        say("stopped: the finished runs are stored; rerun the same command to complete the rest")
+        comm.Abort(0)  # workers busy with a start cannot be interrupted otherwise
+    return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested}
+
+
+def _farm(comm, todo: list, record: Callable, stop: _Stop) -> None:
+    """Dynamic scheduling: the next configuration to whichever worker speaks first."""
+    from mpi4py import MPI
+
+    status = MPI.Status()
+    queue = list(todo)
+    busy = comm.Get_size() - 1  # every worker says "ready" first, then returns results
+    while busy:
+        while not comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
+            if stop.requested:
+                return
+            time.sleep(0.01)
+        message = comm.recv(source=status.Get_source(), tag=status.Get_tag(), status=status)
+        worker = status.Get_source()
+        if status.Get_tag() == TAGS["result"]:
+            record(message)
+        if queue and not stop.requested:
+            comm.send(queue.pop(0), dest=worker, tag=TAGS["work"])
+        else:
+            comm.send(None, dest=worker, tag=TAGS["stop"])
+            busy -= 1

@@ -1,0 +1,159 @@
+"""The multi-start service: ``mpirun -n N mscap run`` on a tiny scene (coarse mesh, three
+poses, k ∈ {2, 3}, two starts each, two L-BFGS iterations per level)."""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mscap.store import finished_ids, read_run, read_store
+from tests.conftest import SMALL_SCENE, to_toml
+
+MSCAP = str(Path(sys.executable).with_name("mscap"))
+ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+           OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1")
+needs_mpirun = pytest.mark.skipif(shutil.which("mpirun") is None, reason="no mpirun (make installs openmpi-bin)")
+
+
+def tiny_scene() -> dict:
+    data = copy.deepcopy(SMALL_SCENE)
+    data["mesh"] = {"edge_length_mm": 4.0, "edge_length_outline_mm": 1.0, "grading_distance_mm": 2.0}
+    data["elastic"] = {"edge_length_mm": 6.0}
+    data["poses"] = [
+        {"name": "left", "kind": "poke", "center_mm": [10.0, 10.0], "radius_mm": 4.0, "depth_mm": 2.0,
+         "held_edges": ["x_min", "x_max"]},
+        {"name": "right", "kind": "poke", "center_mm": [20.0, 10.0], "radius_mm": 4.0, "depth_mm": 2.0,
+         "held_edges": ["x_min", "x_max"]},
+        {"name": "pull", "kind": "stretch", "mode": "uniaxial", "stretch": 1.2, "grips": "roller"}]
+    data["multistart"] = {"k_min": 2, "k_max": 3, "starts_per_k": 2}
+    return data
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("multistart") / "tiny.toml"
+    path.write_text(to_toml(tiny_scene()))
+    return path
+
+
+def mscap_run(n: int, scene: Path, out: Path, *extra, timeout: float = 300) -> subprocess.CompletedProcess:
+    command = [MSCAP, "run", str(scene), "-o", str(out), "--max-iterations", "2", *extra]
+    if n > 1:
+        command = ["mpirun", "-n", str(n), "--oversubscribe", *command]
+    return subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def three_ranks(scene_file, tmp_path_factory):
+    if shutil.which("mpirun") is None:
+        pytest.skip("no mpirun")
+    out = tmp_path_factory.mktemp("n3") / "results.h5"
+    done = mscap_run(3, scene_file, out)
+    assert done.returncode == 0, done.stderr
+    return out, done
+
+
+@needs_mpirun
+def test_three_ranks_write_a_complete_file(three_ranks, capsys):
+    from mscap.cli import main
+
+    out, done = three_ranks
+    store = read_store(out)
+    assert finished_ids(store) == {"k2_s2000_lloyd", "k2_s2001_random", "k3_s3000_lloyd", "k3_s3001_random"}
+    ranks = {read_run(store, rid).rank for rid in finished_ids(store)}
+    assert ranks <= {1, 2} and ranks  # the master only schedules and writes
+    store.close()
+    # One progress line per run, on stderr.
+    assert sum(line.startswith("[") for line in done.stderr.splitlines()) == 4
+    assert main(["inspect", str(out), "--json"]) == 0
+    table = json.loads(capsys.readouterr().out)
+    assert table["runs_total"] == 4 and table["chosen_k"] in (2, 3)
+    assert [row["k"] for row in table["per_k"]] == [2, 3]
+    assert all(row["runs_ok"] == 2 and row["runs_failed"] == 0 for row in table["per_k"])
+
+
+@needs_mpirun
+def test_results_do_not_depend_on_the_number_of_ranks(three_ranks, scene_file, tmp_path):
+    out3, _ = three_ranks
+    out2 = tmp_path / "n2.h5"
+    done = mscap_run(2, scene_file, out2, "-q")
+    assert done.returncode == 0, done.stderr
+    a, b = read_store(out3), read_store(out2)
+    assert finished_ids(a) == finished_ids(b)
+    for rid in finished_ids(a):
+        ra, rb = read_run(a, rid), read_run(b, rid)
+        # Measured: identical to the last bit.
+        np.testing.assert_allclose(rb.final_capacitance_pF, ra.final_capacitance_pF, rtol=1e-10, atol=0)
+        for pa, pb in zip(ra.final_outlines, rb.final_outlines):
+            np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-10)
+
+
+@needs_mpirun
+def test_a_different_scene_is_refused_without_hanging_the_workers(three_ranks, tmp_path):
+    out, _ = three_ranks
+    other = tiny_scene()
+    other["multistart"]["starts_per_k"] = 3
+    path = tmp_path / "other.toml"
+    path.write_text(to_toml(other))
+    done = mscap_run(2, path, out, timeout=120)
+    assert done.returncode != 0
+    assert "mscap: error:" in done.stderr and str(out) in done.stderr
+
+
+def test_an_interrupted_job_resumes_with_only_the_missing_runs(scene_file, tmp_path, monkeypatch):
+    # One process (no mpirun): the master runs every start itself. The first call stops
+    # after k = 2 (as a job killed then would have stored); the rerun does only k = 3.
+    from mpi4py import MPI
+
+    from mscap import multistart
+    from mscap.scene import load_scene
+
+    scene = load_scene(scene_file)
+    out = tmp_path / "resume.h5"
+    lines = []
+    first = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1,
+                                      select_configs=lambda c: c.k == 2, progress=lines.append)
+    assert first == {"runs_done": 2, "runs_failed": 0, "stopped": False}
+    store = read_store(out)
+    before = {rid: read_run(store, rid).wall_s for rid in finished_ids(store)}
+    store.close()
+    ran = []
+    real = multistart.run_start
+    monkeypatch.setattr(multistart, "run_start", lambda s, c, *a, **k: ran.append(c.id) or real(s, c, *a, **k))
+    second = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1, progress=lines.append)
+    assert second["runs_done"] == 2 and sorted(ran) == ["k3_s3000_lloyd", "k3_s3001_random"]
+    assert "2 runs already stored, 2 to do" in lines[-3]
+    store = read_store(out)
+    assert len(finished_ids(store)) == 4
+    assert {rid: read_run(store, rid).wall_s for rid in before} == before  # not redone
+
+
+def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_path, monkeypatch):
+    from mpi4py import MPI
+
+    from mscap import design, multistart
+    from mscap.errors import MeshError
+    from mscap.scene import load_scene
+
+    real = design.build_design
+
+    def build(scene, **kwargs):
+        if scene.layout.k == 3:
+            raise MeshError("gmsh failed to mesh the sheet (forced by the test)")
+        return real(scene, **kwargs)
+    monkeypatch.setattr(design, "build_design", build)
+    out = tmp_path / "fail.h5"
+    summary = multistart.run_multistart(load_scene(scene_file), str(out), MPI.COMM_SELF, max_iterations=1)
+    assert summary == {"runs_done": 4, "runs_failed": 2, "stopped": False}
+    store = read_store(out)
+    failed = read_run(store, "k3_s3000_lloyd")
+    assert failed.status == "failed" and "MeshError: gmsh failed to mesh the sheet (forced" in failed.error
+    assert read_run(store, "k2_s2000_lloyd").ok

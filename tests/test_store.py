@@ -1,0 +1,349 @@
+"""The HDF5 results store, ``mscap inspect`` and ``mscap merge`` on synthetic records
+(no optimisation runs)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from mscap.cli import main
+from mscap.cli.merge import merge
+from mscap.design import min_pairwise_l1
+from mscap.optimize import HISTORY_FIELDS
+from mscap.scene import load_scene
+from mscap.selection import configurations
+from mscap.store import (HISTORY_COLUMNS, ROOT_ATTRS, RUN_ATTRS, RUN_DATASETS, SELECTION_ITEMS, TEMP_PREFIX,
+                         RunRecord, StoreError, failed_record, finished_ids, open_store, read_run, read_store,
+                         record_from_result, schema_markdown, store_selection, write_run, write_selection)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def scene(small_scene_dict, write_scene):
+    small_scene_dict["multistart"] = {"k_min": 2, "k_max": 4, "starts_per_k": 3, "plateau_tol": 0.05}
+    small_scene_dict["poses"] = [{"name": "rest", "kind": "free"}, {"name": "a", "kind": "free"},
+                                 {"name": "b", "kind": "free"}]
+    return load_scene(write_scene(small_scene_dict))
+
+
+@pytest.fixture
+def other_scene(small_scene_dict, write_scene):
+    small_scene_dict["name"] = "other"
+    return load_scene(write_scene(small_scene_dict, "other.toml"))
+
+
+def synthetic_record(k: int, seed: int, init: str = "random", scale: float = 1.0, rank: int = 1) -> RunRecord:
+    """A record with irrational-looking numbers (round-trip must keep every bit)."""
+    rng = np.random.default_rng(seed)
+    n_rows = 5
+    outlines = lambda: tuple(rng.random((int(rng.integers(4, 9)), 2)) * 30 for _ in range(k))  # noqa: E731
+    history = {name: (np.array(["start", "step", "remesh", "step", "converged"], dtype=object) if kind == "str"
+                      else np.arange(n_rows, dtype=kind) if kind == "int64" else rng.random(n_rows) * np.pi)
+               for name, kind in HISTORY_COLUMNS.items()}
+    return RunRecord(k=k, seed=seed, init=init, status="ok", reason="converged", wall_s=float(rng.random() * 100),
+                     iterations=n_rows - 1, rank=rank, poses=("rest", "a", "b"),
+                     initial_outlines=outlines(), final_outlines=outlines(),
+                     initial_capacitance_pF=50 + rng.random((3, k)),
+                     final_capacitance_pF=50 + scale * rng.random((3, k)) * 10, history=history)
+
+
+def assert_same(a: RunRecord, b: RunRecord) -> None:
+    for name in ("k", "seed", "init", "status", "error", "reason", "iterations", "rank", "poses"):
+        assert getattr(a, name) == getattr(b, name), name
+    assert abs(a.wall_s - b.wall_s) <= 1e-15 * abs(a.wall_s)
+    for name in ("initial_outlines", "final_outlines"):
+        assert len(getattr(a, name)) == len(getattr(b, name))
+        for x, y in zip(getattr(a, name), getattr(b, name)):
+            np.testing.assert_allclose(y, x, rtol=1e-15, atol=0)
+    for name in ("initial_capacitance_pF", "final_capacitance_pF"):
+        assert getattr(a, name).shape == getattr(b, name).shape
+        np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-15, atol=0)
+    assert set(b.history) == set(HISTORY_FIELDS)
+    for name in HISTORY_FIELDS:
+        assert list(b.history[name]) == list(a.history[name]), name
+
+
+def test_round_trip(tmp_path, scene):
+    record = synthetic_record(3, 3007, "lloyd")
+    with open_store(tmp_path / "r.h5", scene, mpi_size=4) as store:
+        assert write_run(store, record) == "k3_s3007_lloyd"
+        back = read_run(store, "k3_s3007_lloyd")
+    assert_same(record, back)
+    assert back.metric == min_pairwise_l1(record.final_capacitance_pF)
+    with read_store(tmp_path / "r.h5") as f:  # schema as declared, plain types only
+        assert set(f.attrs) == set(ROOT_ATTRS)
+        assert f.attrs["scene_toml"] == scene.source and f.attrs["scene_sha256"] == scene.sha256
+        assert f.attrs["mpi_size"] == 4
+        g = f["runs/k3_s3007_lloyd"]
+        assert set(g.attrs) == set(RUN_ATTRS)
+        assert set(g) == {n.split("/")[0] for n in RUN_DATASETS}
+        assert set(g["history"]) == set(HISTORY_FIELDS)
+        assert g["final_outline_offsets"][-1] == len(g["final_outline_points_mm"])
+        assert g["final_capacitance_pF"].shape == (3, 3)
+        for ds in [g[n] for n in g if n != "history"] + [g["history"][n] for n in g["history"]]:
+            assert ds.dtype.kind in "fiuO" and ds.dtype.names is None  # no compound, no opaque
+
+
+def test_record_pickles():
+    """Records travel from workers to the master over MPI (pickled)."""
+    import pickle
+
+    record = synthetic_record(3, 1)
+    assert_same(record, pickle.loads(pickle.dumps(record)))
+
+
+def test_failed_record(tmp_path, scene):
+    record = failed_record(4, 4002, "random", "MeshError: triangle quality 0.01 < 0.1", wall_s=2.5, rank=3)
+    with open_store(tmp_path / "r.h5", scene) as store:
+        write_run(store, record)
+        back = read_run(store, record.id)
+    assert not back.ok and back.status == "failed" and back.error == record.error
+    assert back.rank == 3 and back.wall_s == 2.5 and math.isnan(back.metric)
+    assert back.final_outlines == () and back.final_capacitance_pF.shape == (0, 4)
+    assert all(len(v) == 0 for v in back.history.values())
+    from mscap.layout import Layout
+
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    layout = Layout((square, square + 2, square + 4.5, square + 7))
+    with_layout = failed_record(4, 4003, "lloyd", "GeometryError: overlap", 0.1, initial_layout=layout)
+    with open_store(tmp_path / "r.h5", scene) as store:
+        write_run(store, with_layout)
+        back = read_run(store, with_layout.id)
+    assert not back.ok and len(back.initial_outlines) == 4
+    np.testing.assert_array_equal(back.initial_outlines[3], layout.outlines[3])
+
+
+def test_record_from_result(scene):
+    """From an ``OptimizeResult``-shaped object (duck-typed: no optimisation run)."""
+    from types import SimpleNamespace
+
+    from mscap.layout import Layout
+    from mscap.optimize import Record
+
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    before, after = Layout((square, square + 2)), Layout((square * 1.5, square + 3))
+    rows = [Record(0, 0, -1.0, 1.0, 0.1, 0.2, 3.0, 0.0, 1.0, "start", 1, 5, 30.0, 1.0, 0.5),
+            Record(1, 0, -2.0, 2.0, 0.1, 0.2, 1.0, 0.3, 1.4, "converged", 2, 6, 29.0, 0.9, 1.5)]
+    caps = np.array([[1.0, 2.0], [1.5, 2.5], [3.0, 1.0]])
+    result = SimpleNamespace(history=tuple(rows), iterations=1, reason="converged", layout=after,
+                             initial=SimpleNamespace(capacitance_pF=caps * 0.5),
+                             evaluation=SimpleNamespace(capacitance_pF=caps))
+    r = record_from_result(2, 2000, "lloyd", before, result, scene.poses, wall_s=12.0, rank=2)
+    assert r.ok and r.poses == ("rest", "a", "b") and r.iterations == 1 and r.metric == 1.0
+    np.testing.assert_array_equal(r.final_outlines[0], after.outlines[0])
+    np.testing.assert_array_equal(r.initial_outlines[1], before.outlines[1])
+    assert list(r.history["event"]) == ["start", "converged"] and r.history["newton_iterations"].dtype == np.int64
+
+
+def test_resume_finished_ids(tmp_path, scene):
+    path = tmp_path / "r.h5"
+    with open_store(path, scene) as store:
+        write_run(store, synthetic_record(2, 2000))
+        write_run(store, failed_record(2, 2001, "random", "boom", 1.0))
+    with open_store(path, scene, mpi_size=3) as store:
+        assert finished_ids(store) == {"k2_s2000_random", "k2_s2001_random"}
+        assert store.attrs["sessions"] == 2 and store.attrs["mpi_size"] == 3
+        todo = [c for c in configurations(scene) if c.id not in finished_ids(store)]
+        assert len(todo) == len(configurations(scene)) - 1  # the synthetic 2000 is not a configuration
+        write_run(store, synthetic_record(2, 2000, scale=2.0))  # replacing a run keeps one copy
+        assert finished_ids(store) == {"k2_s2000_random", "k2_s2001_random"}
+
+
+def test_refuses_other_scene_unless_force(tmp_path, scene, other_scene):
+    path = tmp_path / "r.h5"
+    with open_store(path, scene) as store:
+        write_run(store, synthetic_record(2, 2000))
+    with pytest.raises(StoreError) as info:
+        open_store(path, other_scene)
+    message = str(info.value)
+    assert scene.sha256 in message and other_scene.sha256 in message and "--force" in message
+    with open_store(path, other_scene, force=True) as store:  # starts over
+        assert finished_ids(store) == set() and store.attrs["scene_sha256"] == other_scene.sha256
+
+
+def test_refuses_non_mscap_file(tmp_path, scene):
+    path = tmp_path / "x.h5"
+    h5py.File(path, "w").close()
+    with pytest.raises(StoreError, match="not an mscap results file"):
+        open_store(path, scene)
+    (tmp_path / "t.h5").write_text("not hdf5")
+    with pytest.raises(StoreError, match="cannot open"):
+        open_store(tmp_path / "t.h5", scene)
+
+
+def test_half_written_group_is_dropped(tmp_path, scene):
+    """A process killed (SIGKILL) while writing a run group leaves a file that opens; the
+    temporary group is dropped, the finished run survives intact."""
+    path = tmp_path / "r.h5"
+    script = textwrap.dedent(f"""
+        import os, signal, sys
+        sys.path.insert(0, {str(ROOT / 'tests')!r})
+        sys.path.insert(0, {str(ROOT)!r})
+        from mscap.scene import load_scene
+        from mscap.store import open_store, write_run, TEMP_PREFIX
+        from test_store import synthetic_record
+        store = open_store({str(path)!r}, load_scene({scene.path!r}))
+        write_run(store, synthetic_record(2, 2000))
+        g = store["runs"].create_group(TEMP_PREFIX + "k3_s3000_random")
+        g.attrs["k"] = 3
+        g.create_dataset("initial_outline_points_mm", data=[[0.0, 1.0]])
+        store.flush()
+        os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    done = subprocess.run([sys.executable, "-c", script], cwd=ROOT)
+    assert done.returncode == -signal.SIGKILL
+    with h5py.File(path, "r") as f:
+        assert TEMP_PREFIX + "k3_s3000_random" in f["runs"]
+    with open_store(path, scene) as store:
+        assert finished_ids(store) == {"k2_s2000_random"}
+        assert list(store["runs"]) == ["k2_s2000_random"]
+        assert_same(synthetic_record(2, 2000), read_run(store, "k2_s2000_random"))
+
+
+def test_killed_while_writing_many_runs(tmp_path, scene):
+    """SIGKILL at an arbitrary moment of a loop of writes: the file opens and every
+    finished run reads back complete."""
+    path = tmp_path / "r.h5"
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT / 'tests')!r})
+        sys.path.insert(0, {str(ROOT)!r})
+        from mscap.scene import load_scene
+        from mscap.store import open_store, write_run
+        from test_store import synthetic_record
+        store = open_store({str(path)!r}, load_scene({scene.path!r}))
+        write_run(store, synthetic_record(2, 0))
+        print("ready", flush=True)
+        for i in range(1, 100000):
+            write_run(store, synthetic_record(2 + i % 3, i))
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "ready"
+    import time
+
+    time.sleep(0.7)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    with open_store(path, scene) as store:
+        ids = finished_ids(store)
+        assert ids and not any(i.startswith(TEMP_PREFIX) for i in store["runs"])
+        for rid in ids:
+            r = read_run(store, rid)
+            assert_same(synthetic_record(r.k, r.seed), r)
+
+
+def test_inspect_while_a_writer_holds_the_file(tmp_path, scene, capsys):
+    """``mscap inspect`` reads a running job's file; a second writer is refused clearly."""
+    path = tmp_path / "r.h5"
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT / 'tests')!r})
+        sys.path.insert(0, {str(ROOT)!r})
+        from mscap.scene import load_scene
+        from mscap.store import open_store, write_run
+        from test_store import synthetic_record
+        store = open_store({str(path)!r}, load_scene({scene.path!r}))
+        write_run(store, synthetic_record(2, 0))
+        print("ready", flush=True)
+        sys.stdin.readline()
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        assert main(["inspect", str(path), "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["runs_total"] == 1
+        if os.environ.get("HDF5_USE_FILE_LOCKING", "").upper() != "FALSE":
+            with pytest.raises(StoreError, match="open for writing in another process"):
+                open_store(path, scene)
+    finally:
+        proc.communicate("\n", timeout=30)
+    assert proc.returncode == 0
+
+
+def test_selection_group(tmp_path, scene):
+    with open_store(tmp_path / "r.h5", scene) as store:
+        for k, scale in ((2, 1.0), (3, 3.0), (4, 3.05)):
+            write_run(store, synthetic_record(k, k * 1000, scale=scale))
+        write_run(store, failed_record(4, 4001, "random", "boom", 1.0))
+        selection = store_selection(store)
+        write_selection(store, selection)
+        write_selection(store, selection)  # rewriting replaces
+        g = store["selection"]
+        assert set(g) | set(g.attrs) == set(SELECTION_ITEMS)
+        assert list(g["k"][()]) == [2, 3, 4] and list(g["runs_failed"][()]) == [0, 0, 1]
+        assert g.attrs["chosen_k"] == selection.chosen_k
+        assert g["best_run"].asstr()[list(g["k"][()]).index(selection.chosen_k)] == selection.chosen_run
+
+
+def synthetic_store(path, scene, metrics: dict, failures=()):
+    """Runs with a prescribed final metric per (k, seed): capacitances of poses on a line."""
+    with open_store(path, scene, mpi_size=2) as store:
+        for (k, seed), m in metrics.items():
+            c = np.zeros((3, k))
+            c[:, 0] = [0.0, m, 2 * m + 1]  # min pairwise L1 = m
+            record = synthetic_record(k, seed)
+            write_run(store, RunRecord(**{**record.__dict__, "final_capacitance_pF": c, "wall_s": 10.0}))
+        for k, seed in failures:
+            write_run(store, failed_record(k, seed, "random", "Newton failed", 1.0))
+        write_selection(store, store_selection(store))
+
+
+def test_inspect_json(tmp_path, scene, capsys):
+    path = tmp_path / "r.h5"
+    synthetic_store(path, scene, {(2, 2000): 1.0, (2, 2001): 1.5, (3, 3000): 2.0, (4, 4000): 2.02},
+                    failures=[(3, 3001), (4, 4001)])
+    assert main(["inspect", str(path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["chosen_k"] == 3 and doc["chosen_run"] == "k3_s3000_random" and doc["runs_total"] == 6
+    assert [(e["k"], e["runs_ok"], e["runs_failed"], e["best_metric"], e["best_run"]) for e in doc["per_k"]] == [
+        (2, 2, 0, 1.5, "k2_s2001_random"), (3, 1, 1, 2.0, "k3_s3000_random"), (4, 1, 1, 2.02, "k4_s4000_random")]
+    assert main(["inspect", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert "*   3" in text and "chosen k = 3" in text
+    assert main(["inspect", str(path), "--run", "k3_s3001_random"]) == 0
+    assert "error: Newton failed" in capsys.readouterr().out
+    assert main(["inspect", str(path), "--run", "k2_s2000_random"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[2].split("\t") == list(HISTORY_FIELDS) and len(out) == 3 + 5
+    assert main(["inspect", str(path), "--run", "nope"]) == 2
+    assert "no run 'nope'" in capsys.readouterr().err
+
+
+def test_merge(tmp_path, scene, other_scene, capsys):
+    a, b, c = tmp_path / "a.h5", tmp_path / "b.h5", tmp_path / "c.h5"
+    synthetic_store(a, scene, {(2, 2000): 1.0, (3, 3000): 2.0}, failures=[(4, 4000)])
+    synthetic_store(b, scene, {(4, 4000): 2.5, (4, 4001): 2.6}, failures=[(2, 2001)])
+    assert main(["merge", str(a), str(b), "-o", str(tmp_path / "all.h5")]) == 0
+    with read_store(tmp_path / "all.h5") as f:
+        assert finished_ids(f) == {"k2_s2000_random", "k2_s2001_random", "k3_s3000_random", "k4_s4000_random",
+                                   "k4_s4001_random"}
+        assert read_run(f, "k4_s4000_random").ok  # the successful copy wins over the failed one
+        with read_store(a) as fa:
+            assert_same(read_run(fa, "k3_s3000_random"), read_run(f, "k3_s3000_random"))
+        assert f.attrs["scene_sha256"] == scene.sha256
+        assert f["selection"].attrs["chosen_k"] == 4 and f["selection"].attrs["chosen_run"] == "k4_s4001_random"
+    assert main(["merge", str(a), str(b), "-o", str(tmp_path / "all.h5")]) == 2  # exists
+    assert "--force" in capsys.readouterr().err
+    assert merge([a, b], tmp_path / "all.h5", force=True) == 5
+    synthetic_store(c, other_scene, {(2, 2000): 1.0})
+    with pytest.raises(StoreError, match="different scenes") as info:
+        merge([a, c], tmp_path / "x.h5")
+    assert scene.sha256 in str(info.value) and other_scene.sha256 in str(info.value)
+
+
+def test_docs_match_schema():
+    """docs/hdf5.md carries the schema tables generated from the code."""
+    text = (ROOT / "docs" / "hdf5.md").read_text()
+    assert schema_markdown() in text
