@@ -6,7 +6,8 @@
 SHELL := /bin/bash
 VENV  ?= .venv
 PY    := $(VENV)/bin/python
-SCENE ?= jobs/poking.toml
+SCENE ?= jobs/quick.toml
+NP    ?= 3
 OUT   ?= out
 
 # Debian packages: PETSc 3.18 + petsc4py, mpi4py + OpenMPI 4.1, venv support, and OpenBLAS
@@ -22,8 +23,11 @@ export OMPI_MCA_rmaps_base_oversubscribe := 1
 .PHONY: run test install system-packages clean
 
 run: install
-	@echo "main job: simulate every pose of the default scene $(SCENE) (the multi-start service replaces this later)"
-	$(VENV)/bin/mscap simulate $(SCENE) --export $(OUT)/$(basename $(notdir $(SCENE)))
+	@echo "main job: the multi-start design service on $(SCENE) ($(NP) MPI ranks: 1 master + $(NP)-1 workers)"
+	@mkdir -p $(OUT)
+	mpirun -n $(NP) $(VENV)/bin/mscap run $(SCENE) -o $(OUT)/$(basename $(notdir $(SCENE))).h5
+	$(VENV)/bin/mscap inspect $(OUT)/$(basename $(notdir $(SCENE))).h5
+	$(VENV)/bin/mscap plot $(OUT)/$(basename $(notdir $(SCENE))).h5 -o $(OUT)/$(basename $(notdir $(SCENE))).png
 
 test: install
 	$(PY) -m pytest -q

@@ -46,6 +46,11 @@ def run(args) -> int:
                 and i >= lo and (hi is None or i < hi))
 
     rank = comm.Get_rank()
+    if comm.Get_size() > 1:  # worker logs say which rank wrote them
+        import logging
+
+        for handler in logging.getLogger().handlers:
+            handler.setFormatter(logging.Formatter(f"[rank {rank}] %(levelname)s %(name)s: %(message)s"))
     say = None if args.quiet or rank else (lambda m: print(m, file=sys.stderr, flush=True))
     summary = run_multistart(scene, args.output, comm, force=args.force, select_configs=keep,
                              max_iterations=args.max_iterations, progress=say)
