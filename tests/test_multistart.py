@@ -157,3 +157,32 @@ def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_pat
     failed = read_run(store, "k3_s3000_lloyd")
     assert failed.status == "failed" and "MeshError: gmsh failed to mesh the sheet (forced" in failed.error
     assert read_run(store, "k2_s2000_lloyd").ok
+
+
+@needs_mpirun
+@pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGKILL"])
+def test_a_killed_job_leaves_a_readable_file_and_the_rerun_completes_it(scene_file, tmp_path, signal_name):
+    # SIGTERM is what SLURM sends at the time limit; SIGKILL is `kill -9` of the whole job.
+    import signal
+    import time
+
+    out = tmp_path / "killed.h5"
+    command = ["mpirun", "-n", "3", "--oversubscribe", MSCAP, "run", str(scene_file), "-o", str(out),
+               "--max-iterations", "2"]
+    job = subprocess.Popen(command, env=ENV, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    for line in job.stderr:  # wait for the first stored run
+        if line.startswith("[1/"):
+            break
+    os.killpg(job.pid, getattr(signal, signal_name))
+    job.communicate(timeout=60)
+    time.sleep(0.5)
+    store = read_store(out)  # opens after any kill
+    before = {rid: read_run(store, rid).wall_s for rid in finished_ids(store)}
+    store.close()
+    assert 1 <= len(before) <= 4
+    done = mscap_run(3, scene_file, out)
+    assert done.returncode == 0, done.stderr
+    assert f"{len(before)} runs already stored, {4 - len(before)} to do" in done.stderr
+    store = read_store(out)
+    assert len(finished_ids(store)) == 4
+    assert {rid: read_run(store, rid).wall_s for rid in before} == before
