@@ -121,7 +121,7 @@ array_id="$(job_id "$array_out")"
 q() { local s="${1//\'/\'\\\'\'}"; printf "'%s'" "$s"; }
 plist=""
 for p in "${parts[@]}"; do plist+=" $(q "$p")"; done
-merge_cmd="set -eu; cd $(q "$MSCAP_REPO"); if [ -x $(q "$MSCAP_VENV/bin/mscap") ]; then PATH=$(q "$MSCAP_VENV/bin"):\$PATH; fi; set --; for f in$plist; do if [ -e \"\$f\" ]; then set -- \"\$@\" \"\$f\"; else echo \"mscap merge: missing part \$f (its array task failed?)\" >&2; fi; done; if [ \$# -eq 0 ]; then echo 'mscap merge: no parts to merge' >&2; exit 1; fi; mscap merge \"\$@\" -o $(q "$MERGED")"
+merge_cmd="set -eu; cd $(q "$MSCAP_REPO"); if [ -x $(q "$MSCAP_VENV/bin/mscap") ]; then PATH=$(q "$MSCAP_VENV/bin"):\$PATH; fi; set --; for f in$plist; do if [ -e \"\$f\" ]; then set -- \"\$@\" \"\$f\"; else echo \"mscap merge: missing part \$f (its array task failed?)\" >&2; fi; done; if [ \$# -eq 0 ]; then echo 'mscap merge: no parts to merge' >&2; exit 1; fi; mscap merge \"\$@\" -o $(q "$MERGED") --force"
 
 merge_out="$(sbatch --parsable --dependency="afterany:$array_id" --job-name=mscap-merge \
     --ntasks=1 --time=00:30:00 --output="mscap-merge-%j.out" --wrap="$merge_cmd")"

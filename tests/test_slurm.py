@@ -306,7 +306,7 @@ def test_submit_k_array_then_dependent_merge(sandbox):
     assert "12345" in proc.stdout and "12346" in proc.stdout
     # Run the merge job's command: every part listed, merged file last.
     argv = run_merge_command(sandbox, wrap, [Path(p) for p in expected])
-    assert argv == ["merge", *expected, "-o", str(parts / "all.h5")]
+    assert argv == ["merge", *expected, "-o", str(parts / "all.h5"), "--force"]  # parts are the truth
 
 
 def test_submit_merge_skips_missing_parts(sandbox):
@@ -320,7 +320,7 @@ def test_submit_merge_skips_missing_parts(sandbox):
     argv = run_merge_command(sandbox, option(merge, "--wrap"),
                              [parts / "results_k2.h5", parts / "results_k4.h5"])
     assert argv == ["merge", str(parts / "results_k2.h5"), str(parts / "results_k4.h5"),
-                    "-o", str(sandbox.tmp / "m.h5")]
+                    "-o", str(sandbox.tmp / "m.h5"), "--force"]
 
 
 def test_submit_seed_split(sandbox):
@@ -337,7 +337,7 @@ def test_submit_seed_split(sandbox):
     expected = [parts / n for n in ("results_seeds0-5.h5", "results_seeds5-10.h5",
                                     "results_seeds10-12.h5")]
     argv = run_merge_command(sandbox, option(merge, "--wrap"), expected)
-    assert argv == ["merge", *map(str, expected), "-o", str(parts / "all.h5")]
+    assert argv == ["merge", *map(str, expected), "-o", str(parts / "all.h5"), "--force"]
 
 
 @pytest.mark.parametrize("mode", ["plain", "cluster"])
@@ -360,7 +360,7 @@ def test_submit_array_task_and_merge_agree_on_part_names(sandbox):
         sandbox.run("mscap_array.sbatch", SLURM_JOB_ID="12345", SLURM_ARRAY_TASK_ID=k, **exports)
         written.append(option(sandbox.calls[-1], "-o"))
     argv = run_merge_command(sandbox, option(merge, "--wrap"), [Path(p) for p in written])
-    assert argv[1:-2] == written
+    assert argv[1:-3] == written
 
 
 def test_submit_rejects_bad_input(sandbox):
@@ -391,7 +391,7 @@ def test_submit_merge_uses_venv_and_odd_paths(sandbox):
                           capture_output=True, text=True, timeout=10)
     assert proc.returncode == 0, proc.stderr
     assert sandbox.calls[-1] == ["venv-mscap", "merge", *map(str, expected), "-o",
-                                 str(parts / "all.h5")]
+                                 str(parts / "all.h5"), "--force"]
 
 
 def test_submit_merge_fails_with_no_parts(sandbox):
