@@ -70,7 +70,7 @@ class _Stop:
         signal.signal(signal.SIGTERM, self._previous)
 
 
-def run_multistart(scene, path: str, comm=None, force: bool = False,
+def run_multistart(scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
                    select_configs: Callable[[StartConfig], bool] | None = None,
                    max_iterations: int | None = None,
                    progress: Callable[[str], None] | None = None) -> dict | None:
@@ -82,6 +82,8 @@ def run_multistart(scene, path: str, comm=None, force: bool = False,
         An mpi4py communicator (default ``MPI.COMM_WORLD``); rank 0 is the master.
     force
         Start the file over even if it holds another scene's runs.
+    retry_failed
+        Run the starts stored as failed again (their groups are replaced).
     select_configs
         Keep only the configurations for which this returns True (k range, seed range).
     max_iterations
@@ -99,7 +101,8 @@ def run_multistart(scene, path: str, comm=None, force: bool = False,
     if comm.Get_rank() != 0:
         _worker(scene, comm, max_iterations)
         return None
-    return _master(scene, path, comm, force, select_configs, max_iterations, progress or (lambda m: None))
+    return _master(scene, path, comm, force, retry_failed, select_configs, max_iterations,
+                   progress or (lambda m: None))
 
 
 def _worker(scene, comm, max_iterations) -> None:
@@ -115,7 +118,7 @@ def _worker(scene, comm, max_iterations) -> None:
         comm.send(run_start(scene, config, rank, max_iterations), dest=0, tag=TAGS["result"])
 
 
-def _master(scene, path, comm, force, select_configs, max_iterations, say) -> dict:
+def _master(scene, path, comm, force, retry_failed, select_configs, max_iterations, say) -> dict:
     size = comm.Get_size()
     try:
         store = open_store(path, scene, mpi_size=size, force=force)
@@ -126,7 +129,7 @@ def _master(scene, path, comm, force, select_configs, max_iterations, say) -> di
     stop = _Stop()
     done = failed = 0
     try:
-        finished = finished_ids(store)
+        finished = finished_ids(store, failed=not retry_failed)
         todo = [c for c in configurations(scene)
                 if c.id not in finished and (select_configs is None or select_configs(c))]
         total, started = len(todo), time.perf_counter()

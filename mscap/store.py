@@ -252,6 +252,10 @@ def open_store(path, scene, mpi_size: int = 1, force: bool = False) -> h5py.File
         raise StoreError(f"{path}: cannot open as HDF5 ({exc}); use --force to start over") from None
     try:
         _check_format(f, path)
+        version = int(f.attrs.get("schema_version", -1))
+        if version != SCHEMA_VERSION:
+            raise StoreError(f"{path} has schema_version {version}; this mscap writes {SCHEMA_VERSION}: "
+                             "use --force to start over or another output file")
         stored = f.attrs["scene_sha256"]
         if stored != scene.sha256:
             raise StoreError(f"{path} holds results of another scene ({f.attrs.get('scene_path', '?')}, "
@@ -291,9 +295,11 @@ def read_store(path) -> h5py.File:
     return f
 
 
-def finished_ids(store: h5py.File) -> set[str]:
-    """Ids of the completely written runs (ok or failed): the ones a resume skips."""
-    return {name for name in store["runs"] if not name.startswith(TEMP_PREFIX)}
+def finished_ids(store: h5py.File, failed: bool = True) -> set[str]:
+    """Ids of the completely written runs: the ones a resume skips. ``failed=False``
+    leaves out the failed ones (``mscap run --retry-failed`` runs them again)."""
+    return {name for name in store["runs"] if not name.startswith(TEMP_PREFIX)
+            and (failed or store["runs"][name].attrs.get("status") == "ok")}
 
 
 def _ragged(outlines) -> tuple[np.ndarray, np.ndarray]:

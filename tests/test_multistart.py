@@ -157,6 +157,15 @@ def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_pat
     failed = read_run(store, "k3_s3000_lloyd")
     assert failed.status == "failed" and "MeshError: gmsh failed to mesh the sheet (forced" in failed.error
     assert read_run(store, "k2_s2000_lloyd").ok
+    store.close()
+    # A plain rerun skips the failed runs; --retry-failed runs exactly those again.
+    monkeypatch.setattr(design, "build_design", real)
+    scene = load_scene(scene_file)
+    assert multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1)["runs_done"] == 0
+    again = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1, retry_failed=True)
+    assert again == {"runs_done": 2, "runs_failed": 0, "stopped": False}
+    store = read_store(out)
+    assert all(read_run(store, rid).ok for rid in finished_ids(store)) and len(finished_ids(store)) == 4
 
 
 @needs_mpirun

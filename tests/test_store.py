@@ -347,3 +347,22 @@ def test_docs_match_schema():
     """docs/hdf5.md carries the schema tables generated from the code."""
     text = (ROOT / "docs" / "hdf5.md").read_text()
     assert schema_markdown() in text
+
+
+def test_a_file_of_another_schema_version_is_refused(tmp_path):
+    import h5py
+
+    from mscap.scene import load_scene
+    from mscap.store import SCHEMA_VERSION, StoreError, open_store
+    from tests.conftest import SMALL_SCENE, to_toml
+
+    path = tmp_path / "scene.toml"
+    path.write_text(to_toml(SMALL_SCENE))
+    scene = load_scene(path)
+    out = tmp_path / "r.h5"
+    open_store(out, scene).close()
+    with h5py.File(out, "r+") as f:
+        f.attrs["schema_version"] = SCHEMA_VERSION + 1
+    with pytest.raises(StoreError, match=rf"schema_version {SCHEMA_VERSION + 1}; this mscap writes {SCHEMA_VERSION}"):
+        open_store(out, scene)
+    open_store(out, scene, force=True).close()  # --force starts over

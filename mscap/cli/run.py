@@ -18,6 +18,7 @@ def add_parser(sub) -> None:
     p.add_argument("--seeds", metavar="A:B", help="only start indices A..B-1 within each k")
     p.add_argument("--max-iterations", type=int, help="L-BFGS iterations per level (default: the scene's)")
     p.add_argument("--force", action="store_true", help="start the file over even if it holds another scene")
+    p.add_argument("--retry-failed", action="store_true", help="run the starts stored as failed again")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(run=run)
 
@@ -52,7 +53,8 @@ def run(args) -> int:
         for handler in logging.getLogger().handlers:
             handler.setFormatter(logging.Formatter(f"[rank {rank}] %(levelname)s %(name)s: %(message)s"))
     say = None if args.quiet or rank else (lambda m: print(m, file=sys.stderr, flush=True))
-    summary = run_multistart(scene, args.output, comm, force=args.force, select_configs=keep,
+    summary = run_multistart(scene, args.output, comm, force=args.force, retry_failed=args.retry_failed,
+                             select_configs=keep,
                              max_iterations=args.max_iterations, progress=say)
     if rank == 0 and not args.quiet:
         print(f"{args.output}: {summary['runs_done']} runs this time ({summary['runs_failed']} failed)"
