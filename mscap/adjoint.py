@@ -45,7 +45,7 @@ import numpy as np
 
 from . import electrostatic, fem, neohookean
 from .contact import Ball, barrier_derivatives
-from .elastic import ElasticError, ElasticProblem, node_values
+from .elastic import ElasticProblem, node_values, rest_geometry
 from .errors import MscapError
 from .layered import LayeredMesh
 from .loading import loading_for
@@ -259,10 +259,7 @@ def problem_at(problem: ElasticProblem, points: np.ndarray) -> ElasticProblem:
     3)``: rest nodes, inverse Jacobians and volumes recomputed; materials, pattern and
     scales kept (the 2D mesh takes the bottom level's x, y)."""
     mesh = _mesh_at(problem.mesh, points)
-    rest_inv, rest_vol = fem.jacobians(mesh.points, mesh.tets)
-    if not (rest_vol > 0).all():
-        bad = int(np.argmin(rest_vol))
-        raise ElasticError(f"tet {bad} of the moved rest mesh is inverted or flat (volume {rest_vol[bad]:.3g} mm³)")
+    rest_inv, rest_vol = rest_geometry(mesh, "moved rest mesh")
     return replace(problem, mesh=mesh, rest=node_values(problem, mesh.points), rest_inv=rest_inv,
                    rest_vol=rest_vol)
 

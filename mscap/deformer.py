@@ -43,6 +43,7 @@ import scipy.sparse.linalg as spla
 from .errors import MeshError
 from .layout import Layout
 from .mesh2d import TriMesh
+from .transfer import p1_matrix
 
 __all__ = ["Deformer", "build_deformer", "skinning_weights", "outer_boundary_vertices",
            "outline_chains", "cotangent_stiffness", "METHODS"]
@@ -336,9 +337,8 @@ def skinning_weights(mesh: TriMesh, control_vertex: np.ndarray, chains: Sequence
         if len(skin.points) >= len(mesh.points):
             weights = _bbw(mesh, control_vertex)
         else:
-            weights, found = _interpolate(skin, _bbw(skin, skin_control), mesh.points)
-            if not found[np.setdiff1d(np.arange(n), boundary)].all():
-                raise MeshError("a vertex inside the sheet lies in no triangle of the skinning mesh")
+            # P1 on the skinning mesh (same sheet polygon, so every vertex lies in it).
+            weights = p1_matrix(skin, mesh.points) @ _bbw(skin, skin_control)
     else:
         weights = _bbw(mesh, control_vertex)
     weights[boundary] = 0.0  # exact handle values, free of solver and interpolation round-off
@@ -405,22 +405,3 @@ def _skinning_mesh(mesh: TriMesh, control_vertex: np.ndarray, chains: Sequence[n
         raise MeshError("a control point is not a vertex of the skinning mesh")
     log.info("skinning mesh: %d vertices for %d control points", len(skin.points), len(control_vertex))
     return skin, skin_control
-
-
-def _interpolate(mesh: TriMesh, values: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """P1 interpolation of vertex ``values`` ``(n, c)`` of ``mesh`` at ``points``, and
-    whether each point was found in a triangle (if not, its row is 0)."""
-    from matplotlib.tri import Triangulation
-
-    triangle = Triangulation(*mesh.points.T, mesh.triangles).get_trifinder()(*points.T)
-    found = triangle >= 0
-    corners = mesh.points[mesh.triangles[triangle[found]]]  # (p, 3, 2)
-    e1, e2, d = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0], points[found] - corners[:, 0]
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    b1 = (d[:, 0] * e2[:, 1] - d[:, 1] * e2[:, 0]) / det
-    b2 = (e1[:, 0] * d[:, 1] - e1[:, 1] * d[:, 0]) / det
-    barycentric = np.clip(np.c_[1.0 - b1 - b2, b1, b2], 0.0, 1.0)
-    barycentric /= barycentric.sum(axis=1, keepdims=True)
-    result = np.zeros((len(points), values.shape[1]))
-    result[found] = np.einsum("pk,pkc->pc", barycentric, values[mesh.triangles[triangle[found]]])
-    return result, found

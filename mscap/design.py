@@ -9,7 +9,7 @@ elastic mesh's 2D vertices follow the *same* blend, interpolated there,
     X2d_fine(q) = X2d_fine0 + W q,      X2d_el(q) = X2d_el0 + T2d W q,
 
 with ``T2d`` the P1 interpolation of the fine 2D mesh at the elastic 2D vertices
-(:func:`mscap.transfer.locate`). Both meshes embed the outlines and the sheet edge, so an
+(:func:`mscap.transfer.p1_matrix`). Both meshes embed the outlines and the sheet edge, so an
 elastic vertex on an outline stays on the deformed outline and one on the sheet edge
 stays put (W vanishes there). Every level of each mesh moves with its 2D vertex.
 
@@ -32,7 +32,6 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import scipy.sparse as sp
 
 from . import electrostatic
 from .adjoint import moved, pose_rest_gradient
@@ -43,8 +42,8 @@ from .loading import loading_for
 from .newton import Operator, solve_pose
 from .objective import Dissimilarity, LaplacianSmoothing, layout_objective
 from .petsc import LinearSolver
-from .simulate import PoseResult, Simulation, simulate
-from .transfer import locate
+from .simulate import PoseResult, Simulation, elastic_setup, simulate
+from .transfer import p1_matrix
 
 __all__ = ["DesignError", "Design", "Evaluation", "build_design", "min_pairwise_l1"]
 
@@ -240,12 +239,7 @@ def _equilibrium(sim: Simulation, scene, i: int, start, operator):
 def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:
     """``T2d W`` ``(n_el2d, c)``: the skinning weights interpolated (P1 on the deformer's
     mesh) at the elastic mesh's 2D vertices."""
-    triangle, bary = locate(deformer.mesh2d, elastic_mesh2d.points)
-    corners = deformer.mesh2d.triangles[triangle]
-    n = len(elastic_mesh2d.points)
-    t2d = sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(n), 3), corners.ravel())),
-                        shape=(n, len(deformer.rest2d)))
-    return np.asarray(t2d @ deformer.weights)
+    return np.asarray(p1_matrix(deformer.mesh2d, elastic_mesh2d.points) @ deformer.weights)
 
 
 def build_design(scene, *, layout=None, control_spacing_mm: float | None = None, count=None,
@@ -271,7 +265,8 @@ def build_design(scene, *, layout=None, control_spacing_mm: float | None = None,
                          f"got {len(scene.poses)}")
     if base is None:
         base = simulate(replace(scene, poses=()), mesh=None)
-        base = _with_elastic(scene, base)
+        problem, transfer = elastic_setup(scene, base.mesh)
+        base = replace(base, elastic=problem, transfer=transfer)
     spacing = None if count is not None else (control_spacing_mm or settings.control_spacing_mm)
     deformer = build_deformer(base.mesh.mesh2d, scene.layout, spacing_mm=spacing, count=count,
                               method=method or settings.skinning)
@@ -279,17 +274,3 @@ def build_design(scene, *, layout=None, control_spacing_mm: float | None = None,
     if base.elastic is not None and base.transfer is not None:
         weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
     return Design(scene, base, deformer, weights)
-
-
-def _with_elastic(scene, base: Simulation) -> Simulation:
-    """``base`` with the elastic problem and transfer the scene's poses need."""
-    from .elastic import build_problem
-    from .layered import mesh_elastic
-    from .transfer import interpolation_matrix
-
-    if all(p.kind == "free" for p in scene.poses):
-        return base
-    elastic_mesh = mesh_elastic(scene, base.mesh)
-    problem = build_problem(elastic_mesh, scene.layers, scene.elastic.order)
-    transfer = None if elastic_mesh is base.mesh else interpolation_matrix(problem, base.mesh.points)
-    return replace(base, elastic=problem, transfer=transfer)

@@ -27,8 +27,8 @@ from . import fem, neohookean
 from .errors import MscapError
 from .layered import LayeredMesh, tet_values
 
-__all__ = ["ElasticError", "ElasticProblem", "Assembly", "build_problem", "lame_of_tets", "assemble",
-           "total_energy", "node_values", "tet_fields"]
+__all__ = ["ElasticError", "ElasticProblem", "Assembly", "build_problem", "rest_geometry", "lame_of_tets",
+           "assemble", "total_energy", "node_values", "tet_fields"]
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +125,15 @@ def lame_of_tets(mesh: LayeredMesh, layers: Sequence) -> tuple[np.ndarray, np.nd
     return lame[:, 0].copy(), lame[:, 1].copy()
 
 
+def rest_geometry(mesh: LayeredMesh, what: str = "rest mesh") -> tuple[np.ndarray, np.ndarray]:
+    """Inverse rest Jacobians and volumes of every tet; a tet with volume ≤ 0 raises."""
+    rest_inv, rest_vol = fem.jacobians(mesh.points, mesh.tets)
+    if not (rest_vol > 0).all():
+        bad = int(np.argmin(rest_vol))
+        raise ElasticError(f"tet {bad} of the {what} is inverted or flat (volume {rest_vol[bad]:.3g} mm³)")
+    return rest_inv, rest_vol
+
+
 def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> ElasticProblem:
     """Rest geometry, materials and the Hessian's sparsity pattern (once per mesh)."""
     if order not in (1, 2):
@@ -138,10 +147,7 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Elasti
         rest = np.concatenate([mesh.points, 0.5 * mesh.points[edges].sum(axis=1)])
     else:
         edges, rest = np.zeros((0, 2), dtype=np.int64), mesh.points.copy()
-    rest_inv, rest_vol = fem.jacobians(mesh.points, mesh.tets)
-    if not (rest_vol > 0).all():
-        bad = int(np.argmin(rest_vol))
-        raise ElasticError(f"tet {bad} of the rest mesh is inverted or flat (volume {rest_vol[bad]:.3g} mm³)")
+    rest_inv, rest_vol = rest_geometry(mesh)
     mu, lam = lame_of_tets(mesh, layers)
 
     nb = nodes.shape[1]

@@ -22,7 +22,7 @@ from .newton import ElasticState, Operator, solve_pose
 from .petsc import LinearSolver
 from .transfer import interpolation_matrix
 
-__all__ = ["PoseResult", "Simulation", "simulate", "electro_vertices"]
+__all__ = ["PoseResult", "Simulation", "simulate", "elastic_setup", "electro_vertices"]
 
 log = logging.getLogger(__name__)
 
@@ -100,15 +100,8 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
     mesh = mesh or mesh_scene(scene)
     meshed = time.perf_counter()
     electro = electrostatic.build_problem(mesh, scene.layers, order or scene.mesh.order)
-    needs_elastic = any(p.kind != "free" for p in scene.poses)
-    problem = operator = transfer = None
-    if needs_elastic:
-        _warn_p1_clamped_stretch(scene, elastic_order or scene.elastic.order)
-        elastic_mesh = mesh_elastic(scene, mesh)
-        problem = build_problem(elastic_mesh, scene.layers, elastic_order or scene.elastic.order)
-        operator = Operator(problem)
-        if elastic_mesh is not mesh:
-            transfer = interpolation_matrix(problem, mesh.points)
+    problem, transfer = elastic_setup(scene, mesh, elastic_order)
+    operator = Operator(problem) if problem is not None else None
     solver = LinearSolver("electro_")
     prepared = time.perf_counter()
     results = []
@@ -141,6 +134,19 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
              "electrostatic": sum(r.electrostatic_s for r in results), "total": end - start,
              "elastic_split": split}
     return Simulation(scene.name, mesh, problem, electro, tuple(results), times, transfer)
+
+
+def elastic_setup(scene, mesh: LayeredMesh, order: int | None = None):
+    """The elastic problem the scene's poses need (``None`` if every pose is free) on the
+    scene's elastic mesh, and the transfer to ``mesh``'s vertices (``None`` when shared)."""
+    if all(p.kind == "free" for p in scene.poses):
+        return None, None
+    order = order or scene.elastic.order
+    _warn_p1_clamped_stretch(scene, order)
+    elastic_mesh = mesh_elastic(scene, mesh)
+    problem = build_problem(elastic_mesh, scene.layers, order)
+    transfer = None if elastic_mesh is mesh else interpolation_matrix(problem, mesh.points)
+    return problem, transfer
 
 
 def _warn_p1_clamped_stretch(scene, order: int) -> None:

@@ -22,7 +22,7 @@ from . import fem
 from .errors import MeshError
 from .mesh2d import TriMesh
 
-__all__ = ["locate", "interpolation_matrix"]
+__all__ = ["locate", "p1_matrix", "interpolation_matrix"]
 
 #: A point counts as inside a triangle or tet when every barycentric coordinate is above
 #: ``-TOLERANCE`` (points on shared edges and on the sheet boundary sit at round-off).
@@ -75,6 +75,16 @@ def locate(mesh: TriMesh, points: np.ndarray, candidates: int = 8) -> tuple[np.n
                         f"({p[0]:.6g}, {p[1]:.6g}) mm")
     bary = np.clip(_barycentric_2d(mesh, triangle, points), 0.0, None)
     return triangle, bary / bary.sum(axis=1, keepdims=True)
+
+
+def p1_matrix(mesh: TriMesh, points: np.ndarray) -> sp.csr_matrix:
+    """``(n_points, n_vertices)`` P1 interpolation on the triangulation ``mesh`` at
+    ``points`` ``(n, 2)``: ``T @ values`` interpolates vertex values (raises
+    :class:`MeshError` for points outside, as :func:`locate`)."""
+    triangle, bary = locate(mesh, points)
+    rows = np.repeat(np.arange(len(points)), 3)
+    return sp.csr_matrix((bary.ravel(), (rows, mesh.triangles[triangle].ravel())),
+                         shape=(len(points), len(mesh.points)))
 
 
 def interpolation_matrix(problem, points: np.ndarray) -> sp.csr_matrix:

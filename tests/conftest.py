@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from mscap.mesh2d import TriMesh
+from mscap.store import HISTORY_COLUMNS, RunRecord
 
 
 def _value(v) -> str:
@@ -97,3 +98,19 @@ def grid_trimesh(nx, ny, width, height, capacitor_of_centroid, jitter=0.0, seed=
     triangles = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
     owner = capacitor_of_centroid(points[triangles].mean(axis=1)).astype(np.int64)
     return TriMesh(points, triangles, owner)
+
+
+def synthetic_record(k: int, seed: int, init: str = "random", scale: float = 1.0, rank: int = 1) -> RunRecord:
+    """A successful multi-start record (store and plot tests) with irrational-looking
+    numbers: a round trip must keep every bit."""
+    rng = np.random.default_rng(seed)
+    n_rows = 5
+    outlines = lambda: tuple(rng.random((int(rng.integers(4, 9)), 2)) * 30 for _ in range(k))  # noqa: E731
+    history = {name: (np.array(["start", "step", "remesh", "step", "converged"], dtype=object) if kind == "str"
+                      else np.arange(n_rows, dtype=kind) if kind == "int64" else rng.random(n_rows) * np.pi)
+               for name, kind in HISTORY_COLUMNS.items()}
+    return RunRecord(k=k, seed=seed, init=init, status="ok", reason="converged", wall_s=float(rng.random() * 100),
+                     iterations=n_rows - 1, rank=rank, poses=("rest", "a", "b"),
+                     initial_outlines=outlines(), final_outlines=outlines(),
+                     initial_capacitance_pF=50 + rng.random((3, k)),
+                     final_capacitance_pF=50 + scale * rng.random((3, k)) * 10, history=history)

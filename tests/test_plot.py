@@ -5,14 +5,14 @@ from __future__ import annotations
 import math
 import struct
 
-import numpy as np
 import pytest
 
 from mscap.cli import main
 from mscap.cli.plot import PANEL_SIZE_IN, grid_shape, panels
 from mscap.scene import load_scene
 from mscap.selection import RunSummary, select
-from mscap.store import HISTORY_COLUMNS, RunRecord, failed_record, open_store, store_selection, write_run
+from mscap.store import failed_record, open_store, store_selection, write_run
+from tests.conftest import synthetic_record
 
 DPI = 50
 
@@ -23,22 +23,6 @@ def scene(small_scene_dict, write_scene):
     small_scene_dict["poses"] = [{"name": "rest", "kind": "free"}, {"name": "a", "kind": "free"},
                                  {"name": "b", "kind": "free"}]
     return load_scene(write_scene(small_scene_dict))
-
-
-def synthetic_record(k: int, seed: int, init: str = "random", scale: float = 1.0) -> RunRecord:
-    """A successful record with random outlines inside the 30 x 20 mm sheet (copied from
-    tests/test_store.py)."""
-    rng = np.random.default_rng(seed)
-    n_rows = 5
-    outlines = lambda: tuple(rng.random((int(rng.integers(4, 9)), 2)) * 20 for _ in range(k))  # noqa: E731
-    history = {name: (np.array(["start", "step", "remesh", "step", "converged"], dtype=object) if kind == "str"
-                      else np.arange(n_rows, dtype=kind) if kind == "int64" else rng.random(n_rows))
-               for name, kind in HISTORY_COLUMNS.items()}
-    return RunRecord(k=k, seed=seed, init=init, status="ok", reason="converged", wall_s=float(rng.random() * 100),
-                     iterations=n_rows - 1, rank=1, poses=("rest", "a", "b"),
-                     initial_outlines=outlines(), final_outlines=outlines(),
-                     initial_capacitance_pF=50 + rng.random((3, k)),
-                     final_capacitance_pF=50 + scale * rng.random((3, k)) * 10, history=history)
 
 
 def png_size(path) -> tuple[int, int]:

@@ -22,11 +22,26 @@ from mscap.design import min_pairwise_l1
 from mscap.optimize import HISTORY_FIELDS
 from mscap.scene import load_scene
 from mscap.selection import configurations
-from mscap.store import (HISTORY_COLUMNS, ROOT_ATTRS, RUN_ATTRS, RUN_DATASETS, SELECTION_ITEMS, TEMP_PREFIX,
+from mscap.store import (ROOT_ATTRS, RUN_ATTRS, RUN_DATASETS, SELECTION_ITEMS, TEMP_PREFIX,
                          RunRecord, StoreError, failed_record, finished_ids, open_store, read_run, read_store,
                          record_from_result, schema_markdown, store_selection, write_run, write_selection)
+from tests.conftest import synthetic_record
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def writer_script(path, scene, first_seed: int, then: str) -> str:
+    """A Python program that opens the store, writes ``synthetic_record(2, first_seed)``,
+    then runs ``then`` (the tests kill it or make it wait)."""
+    return textwrap.dedent(f"""
+        import os, signal, sys
+        sys.path.insert(0, {str(ROOT)!r})
+        from mscap.scene import load_scene
+        from mscap.store import open_store, write_run, TEMP_PREFIX
+        from tests.conftest import synthetic_record
+        store = open_store({str(path)!r}, load_scene({scene.path!r}))
+        write_run(store, synthetic_record(2, {first_seed}))
+    """) + textwrap.dedent(then)
 
 
 @pytest.fixture
@@ -41,21 +56,6 @@ def scene(small_scene_dict, write_scene):
 def other_scene(small_scene_dict, write_scene):
     small_scene_dict["name"] = "other"
     return load_scene(write_scene(small_scene_dict, "other.toml"))
-
-
-def synthetic_record(k: int, seed: int, init: str = "random", scale: float = 1.0, rank: int = 1) -> RunRecord:
-    """A record with irrational-looking numbers (round-trip must keep every bit)."""
-    rng = np.random.default_rng(seed)
-    n_rows = 5
-    outlines = lambda: tuple(rng.random((int(rng.integers(4, 9)), 2)) * 30 for _ in range(k))  # noqa: E731
-    history = {name: (np.array(["start", "step", "remesh", "step", "converged"], dtype=object) if kind == "str"
-                      else np.arange(n_rows, dtype=kind) if kind == "int64" else rng.random(n_rows) * np.pi)
-               for name, kind in HISTORY_COLUMNS.items()}
-    return RunRecord(k=k, seed=seed, init=init, status="ok", reason="converged", wall_s=float(rng.random() * 100),
-                     iterations=n_rows - 1, rank=rank, poses=("rest", "a", "b"),
-                     initial_outlines=outlines(), final_outlines=outlines(),
-                     initial_capacitance_pF=50 + rng.random((3, k)),
-                     final_capacitance_pF=50 + scale * rng.random((3, k)) * 10, history=history)
 
 
 def assert_same(a: RunRecord, b: RunRecord) -> None:
@@ -186,15 +186,7 @@ def test_half_written_group_is_dropped(tmp_path, scene):
     """A process killed (SIGKILL) while writing a run group leaves a file that opens; the
     temporary group is dropped, the finished run survives intact."""
     path = tmp_path / "r.h5"
-    script = textwrap.dedent(f"""
-        import os, signal, sys
-        sys.path.insert(0, {str(ROOT / 'tests')!r})
-        sys.path.insert(0, {str(ROOT)!r})
-        from mscap.scene import load_scene
-        from mscap.store import open_store, write_run, TEMP_PREFIX
-        from test_store import synthetic_record
-        store = open_store({str(path)!r}, load_scene({scene.path!r}))
-        write_run(store, synthetic_record(2, 2000))
+    script = writer_script(path, scene, 2000, """
         g = store["runs"].create_group(TEMP_PREFIX + "k3_s3000_random")
         g.attrs["k"] = 3
         g.create_dataset("initial_outline_points_mm", data=[[0.0, 1.0]])
@@ -215,15 +207,7 @@ def test_killed_while_writing_many_runs(tmp_path, scene):
     """SIGKILL at an arbitrary moment of a loop of writes: the file opens and every
     finished run reads back complete."""
     path = tmp_path / "r.h5"
-    script = textwrap.dedent(f"""
-        import sys
-        sys.path.insert(0, {str(ROOT / 'tests')!r})
-        sys.path.insert(0, {str(ROOT)!r})
-        from mscap.scene import load_scene
-        from mscap.store import open_store, write_run
-        from test_store import synthetic_record
-        store = open_store({str(path)!r}, load_scene({scene.path!r}))
-        write_run(store, synthetic_record(2, 0))
+    script = writer_script(path, scene, 0, """
         print("ready", flush=True)
         for i in range(1, 100000):
             write_run(store, synthetic_record(2 + i % 3, i))
@@ -246,15 +230,7 @@ def test_killed_while_writing_many_runs(tmp_path, scene):
 def test_inspect_while_a_writer_holds_the_file(tmp_path, scene, capsys):
     """``mscap inspect`` reads a running job's file; a second writer is refused clearly."""
     path = tmp_path / "r.h5"
-    script = textwrap.dedent(f"""
-        import sys
-        sys.path.insert(0, {str(ROOT / 'tests')!r})
-        sys.path.insert(0, {str(ROOT)!r})
-        from mscap.scene import load_scene
-        from mscap.store import open_store, write_run
-        from test_store import synthetic_record
-        store = open_store({str(path)!r}, load_scene({scene.path!r}))
-        write_run(store, synthetic_record(2, 0))
+    script = writer_script(path, scene, 0, """
         print("ready", flush=True)
         sys.stdin.readline()
     """)

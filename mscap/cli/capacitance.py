@@ -11,8 +11,8 @@ import numpy as np
 from ..electrostatic import build_problem, solve
 from ..io import write_mesh
 from ..layered import mesh_scene
-from ..petsc import LinearSolver, petsc, set_scene_options
-from ..scene import load_scene
+from ..petsc import LinearSolver
+from .common import load_scene_for
 
 
 def add_parser(sub) -> None:
@@ -31,9 +31,7 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    petsc(args.petsc_args)
-    scene = load_scene(args.scene)
-    set_scene_options(scene.petsc_options)
+    scene = load_scene_for(args)
     order = args.order or scene.mesh.order
     start = time.perf_counter()
     mesh = mesh_scene(scene)

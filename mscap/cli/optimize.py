@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import csv
 import json
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from ..petsc import petsc, set_scene_options
-from ..scene import load_scene
+from .common import load_scene_for, progress_printer
 
 
 def add_parser(sub) -> None:
@@ -41,10 +39,8 @@ def run(args) -> int:
     from ..initial import initial_layout
     from ..optimize import HISTORY_FIELDS, optimize
 
-    petsc(args.petsc_args)
-    scene = load_scene(args.scene)
-    set_scene_options(scene.petsc_options)
-    say = (lambda message: None) if args.quiet else (lambda message: print(message, file=sys.stderr, flush=True))
+    scene = load_scene_for(args)
+    say = progress_printer(args.quiet) or (lambda message: None)
     layout = initial_layout(scene, args.k, args.seed, args.init)
     say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(scene.poses)} poses")
     design = build_design(replace(scene, layout=layout))
@@ -98,22 +94,18 @@ def figure(path: Path, scene, before, after, c_before: np.ndarray, c_after: np.n
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ..design import min_pairwise_l1
+    from .plot import draw_layout
+
     fig, axes = plt.subplots(2, 2, figsize=(10, 8.5))
-    sheet = np.vstack([scene.sheet_outline_mm, scene.sheet_outline_mm[:1]])
     colours = plt.get_cmap("tab10")
     for col, (title, layout, caps) in enumerate((("initial", before, c_before), ("optimised", after, c_after))):
         ax = axes[0, col]
-        ax.plot(*sheet.T, color="0.3", lw=1)
-        for j, o in enumerate(layout.outlines):
-            closed = np.vstack([o, o[:1]])
-            ax.fill(*closed.T, color=colours(j % 10), alpha=0.35)
-            ax.plot(*closed.T, color=colours(j % 10), lw=1)
-            ax.text(*o.mean(axis=0), str(j), ha="center", va="center")
+        draw_layout(ax, scene.sheet_outline_mm, layout.outlines, colours, fontsize=10)
         for p in scene.poses:
             if p.kind == "poke":
                 ax.add_patch(plt.Circle(p.center_mm, p.radius_mm, fill=False, ls="--", color="k", lw=0.8))
                 ax.text(*p.center_mm, p.name, fontsize=7, ha="center", va="center")
-        ax.set_aspect("equal")
         ax.set_title(f"{title} layout")
         ax.set_xlabel("x (mm)")
         ax.set_ylabel("y (mm)")
@@ -126,7 +118,7 @@ def figure(path: Path, scene, before, after, c_before: np.ndarray, c_after: np.n
                    label=f"C{j}")
         ax.set_xticks(np.arange(n), poses, rotation=20, fontsize=8)
         ax.axhline(0, color="0.5", lw=0.5)
-        l1 = _min_l1(caps)
+        l1 = min_pairwise_l1(caps)
         ax.set_title(f"{title}: C − mean over poses (min pairwise L1 {l1:.3g} pF)", fontsize=9)
         ax.set_ylabel("ΔC (pF)")
         ax.legend(fontsize=7)
@@ -137,9 +129,3 @@ def figure(path: Path, scene, before, after, c_before: np.ndarray, c_after: np.n
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
-
-
-def _min_l1(c: np.ndarray) -> float:
-    from ..design import min_pairwise_l1
-
-    return min_pairwise_l1(c)

@@ -98,8 +98,8 @@ def _sheet_outline(store) -> np.ndarray | None:
         return None
 
 
-def draw_layout(ax, sheet: np.ndarray | None, outlines, colours) -> None:
-    """Sheet outline in grey, plates filled in ``colours(j)`` and numbered (the style of
+def draw_layout(ax, sheet: np.ndarray | None, outlines, colours, fontsize: float = 8) -> None:
+    """Sheet outline in grey, plates filled in ``colours(j)`` and numbered (also
     ``mscap optimize``'s layout figure)."""
     if sheet is not None:
         ax.plot(*np.vstack([sheet, sheet[:1]]).T, color="0.3", lw=1)
@@ -107,7 +107,7 @@ def draw_layout(ax, sheet: np.ndarray | None, outlines, colours) -> None:
         closed = np.vstack([o, o[:1]])
         ax.fill(*closed.T, color=colours(j % 10), alpha=0.35)
         ax.plot(*closed.T, color=colours(j % 10), lw=1)
-        ax.text(*o.mean(axis=0), str(j), ha="center", va="center", fontsize=8)
+        ax.text(*o.mean(axis=0), str(j), ha="center", va="center", fontsize=fontsize)
     ax.set_aspect("equal")
 
 

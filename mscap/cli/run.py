@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-
 
 def add_parser(sub) -> None:
     p = sub.add_parser("run", help="multi-start layout optimisation over MPI into one HDF5 file",
@@ -27,14 +25,11 @@ def run(args) -> int:
     from mpi4py import MPI
 
     from ..multistart import run_multistart
-    from ..petsc import petsc, set_scene_options
-    from ..scene import load_scene
     from ..selection import configurations
+    from .common import load_scene_for, progress_printer
 
     comm = MPI.COMM_WORLD
-    petsc(args.petsc_args)
-    scene = load_scene(args.scene)
-    set_scene_options(scene.petsc_options)
+    scene = load_scene_for(args)
     index_of = {c.id: i % max(scene.multistart.starts_per_k, 1) for i, c in enumerate(configurations(scene))}
     lo, hi = 0, None
     if args.seeds:
@@ -52,10 +47,9 @@ def run(args) -> int:
 
         for handler in logging.getLogger().handlers:
             handler.setFormatter(logging.Formatter(f"[rank {rank}] %(levelname)s %(name)s: %(message)s"))
-    say = None if args.quiet or rank else (lambda m: print(m, file=sys.stderr, flush=True))
+    say = progress_printer(args.quiet or rank > 0)
     summary = run_multistart(scene, args.output, comm, force=args.force, retry_failed=args.retry_failed,
-                             select_configs=keep,
-                             max_iterations=args.max_iterations, progress=say)
+                             select_configs=keep, max_iterations=args.max_iterations, progress=say)
     if rank == 0 and not args.quiet:
         print(f"{args.output}: {summary['runs_done']} runs this time ({summary['runs_failed']} failed)"
               + ("; stopped early" if summary["stopped"] else ""))

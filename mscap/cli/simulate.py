@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..elastic import tet_fields
 from ..io import write_mesh
-from ..petsc import petsc, set_scene_options
-from ..scene import load_scene
 from ..simulate import simulate
+from .common import load_scene_for, progress_printer
 
 
 def add_parser(sub) -> None:
@@ -36,9 +34,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     import dataclasses
 
-    petsc(args.petsc_args)
-    scene = load_scene(args.scene)
-    set_scene_options(scene.petsc_options)
+    scene = load_scene_for(args)
     if args.poses:
         wanted = args.poses.split(",")
         known = {p.name for p in scene.poses}
@@ -49,7 +45,7 @@ def run(args) -> int:
             raise SceneError(scene.path, "poses", f"no pose named {unknown[0]!r}; "
                              f"the scene has {', '.join(p.name for p in scene.poses)}")
         scene = dataclasses.replace(scene, poses=tuple(p for p in scene.poses if p.name in wanted))
-    progress = None if args.quiet else (lambda message: print(message, file=sys.stderr, flush=True))
+    progress = progress_printer(args.quiet)
     sim = simulate(scene, order=args.order, elastic_order=args.elastic_order, progress=progress)
 
     files = []
