@@ -30,7 +30,8 @@ from .selection import RunSummary, Selection, select, SELECTION_RULE, run_id
 __all__ = ["StoreError", "RunRecord", "FORMAT", "SCHEMA_VERSION", "ROOT_ATTRS", "RUN_ATTRS",
            "RUN_DATASETS", "HISTORY_COLUMNS", "SELECTION_ITEMS", "TEMP_PREFIX", "open_store", "create_store", "read_store",
            "finished_ids", "write_run", "read_run", "run_summaries", "write_selection", "store_selection",
-           "record_from_result", "failed_record", "scene_settings", "schema_markdown"]
+           "record_from_result", "failed_record", "scene_settings", "schema_markdown",
+           "StoredDesign", "split_design_spec", "read_design"]
 
 log = logging.getLogger(__name__)
 
@@ -423,3 +424,54 @@ def write_selection(store: h5py.File, selection: Selection) -> None:
     store.move(temp, "selection")
     store.flush()
 
+
+
+# ---------------------------------------------------------------- designs for later stages
+@dataclass(frozen=True, eq=False)
+class StoredDesign:
+    """One layout taken from a results file, for calibration and readout.
+
+    ``label`` says where it came from (``"k3_s1_lloyd"``, ``"k3_s1_lloyd:initial"``);
+    ``capacitance_pF`` is ``(n_poses, k)`` over the scene's poses ``poses``.
+    """
+
+    label: str
+    run_id: str
+    which: str
+    outlines: tuple[np.ndarray, ...]
+    poses: tuple[str, ...]
+    capacitance_pF: np.ndarray
+
+
+def split_design_spec(spec: str) -> tuple[str, str | None]:
+    """``"results.h5:RUN"`` → ``("results.h5", "RUN")``; ``"results.h5"`` → ``(…, None)``."""
+    path, sep, rid = str(spec).rpartition(":")
+    if not sep or not path.endswith((".h5", ".hdf5")):
+        return str(spec), None
+    return path, rid or None
+
+
+def read_design(store: h5py.File, rid: str | None = None, which: str = "final") -> StoredDesign:
+    """The ``which`` (``"final"`` or ``"initial"``) layout of run ``rid`` of an open
+    results file; ``rid=None`` takes the run the selection chose.
+
+    Raises
+    ------
+    StoreError
+        No such run, a failed run, or no chosen run in the file.
+    """
+    if which not in ("final", "initial"):
+        raise ValueError(f"which must be 'final' or 'initial', got {which!r}")
+    if rid is None:
+        rid = store_selection(store).chosen_run
+        if not rid:
+            raise StoreError(f"{store.filename}: no successful run to choose a design from; "
+                             "name one as FILE.h5:RUN")
+    record = read_run(store, rid)
+    if not record.ok:
+        raise StoreError(f"{store.filename}: run {rid!r} failed ({record.error}); it has no design")
+    outlines = record.final_outlines if which == "final" else record.initial_outlines
+    capacitance = record.final_capacitance_pF if which == "final" else record.initial_capacitance_pF
+    label = rid if which == "final" else f"{rid}:initial"
+    return StoredDesign(label=label, run_id=rid, which=which, outlines=outlines, poses=record.poses,
+                        capacitance_pF=np.array(capacitance, dtype=float))
