@@ -18,12 +18,12 @@ writes the selection and aborts the workers still busy.
 from __future__ import annotations
 
 import logging
-import signal
 import time
 import traceback
 from dataclasses import replace
 from typing import Callable
 
+from .farm import TAGS, Stop, farm, release, serve
 from .selection import StartConfig, configurations, select
 from .store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
     write_selection
@@ -31,10 +31,6 @@ from .store import failed_record, finished_ids, open_store, record_from_result, 
 __all__ = ["TAGS", "run_start", "run_multistart"]
 
 log = logging.getLogger(__name__)
-
-#: Message tags between master and workers, in one place.
-TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4}
-
 
 def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None):
     """Run one start and return its :class:`~mscap.store.RunRecord` (failed, with the
@@ -54,20 +50,6 @@ def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | N
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
         return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
                              time.perf_counter() - start, rank)
-
-
-class _Stop:
-    """Turns SIGTERM into a flag the master polls (SLURM's time limit)."""
-
-    def __init__(self):
-        self.requested = False
-        self._previous = signal.signal(signal.SIGTERM, self._handle)
-
-    def _handle(self, signum, frame):
-        self.requested = True
-
-    def restore(self):
-        signal.signal(signal.SIGTERM, self._previous)
 
 
 def run_multistart(scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
@@ -106,16 +88,8 @@ def run_multistart(scene, path: str, comm=None, force: bool = False, retry_faile
 
 
 def _worker(scene, comm, max_iterations) -> None:
-    from mpi4py import MPI
-
     rank = comm.Get_rank()
-    status = MPI.Status()
-    comm.send(None, dest=0, tag=TAGS["ready"])
-    while True:
-        config = comm.recv(source=0, tag=MPI.ANY_TAG, status=status)
-        if status.Get_tag() == TAGS["stop"]:
-            return
-        comm.send(run_start(scene, config, rank, max_iterations), dest=0, tag=TAGS["result"])
+    serve(comm, lambda config: run_start(scene, config, rank, max_iterations))
 
 
 def _master(scene, path, comm, force, retry_failed, select_configs, max_iterations, say) -> dict:
@@ -123,10 +97,9 @@ def _master(scene, path, comm, force, retry_failed, select_configs, max_iteratio
     try:
         store = open_store(path, scene, mpi_size=size, force=force)
     except Exception:
-        for worker in range(1, size):  # let the workers go before the error reaches main()
-            comm.send(None, dest=worker, tag=TAGS["stop"])
+        release(comm)  # let the workers go before the error reaches main()
         raise
-    stop = _Stop()
+    stop = Stop()
     done = failed = 0
     try:
         finished = finished_ids(store, failed=not retry_failed)
@@ -153,7 +126,7 @@ def _master(scene, path, comm, force, retry_failed, select_configs, max_iteratio
                     break
                 record(run_start(scene, config, 0, max_iterations))
         else:
-            _farm(comm, todo, record, stop)
+            farm(comm, todo, record, stop)
     except KeyboardInterrupt:
         stop.requested = True
     finally:
@@ -167,25 +140,3 @@ def _master(scene, path, comm, force, retry_failed, select_configs, max_iteratio
         comm.Abort(0)  # workers busy with a start cannot be interrupted otherwise
     return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested}
 
-
-def _farm(comm, todo: list, record: Callable, stop: _Stop) -> None:
-    """Dynamic scheduling: the next configuration to whichever worker speaks first."""
-    from mpi4py import MPI
-
-    status = MPI.Status()
-    queue = list(todo)
-    busy = comm.Get_size() - 1  # every worker says "ready" first, then returns results
-    while busy:
-        while not comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
-            if stop.requested:
-                return
-            time.sleep(0.01)
-        message = comm.recv(source=status.Get_source(), tag=status.Get_tag(), status=status)
-        worker = status.Get_source()
-        if status.Get_tag() == TAGS["result"]:
-            record(message)
-        if queue and not stop.requested:
-            comm.send(queue.pop(0), dest=worker, tag=TAGS["work"])
-        else:
-            comm.send(None, dest=worker, tag=TAGS["stop"])
-            busy -= 1

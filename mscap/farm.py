@@ -1,0 +1,79 @@
+"""Master/worker task farming over MPI, shared by the multi-start service and the
+calibration's training simulations.
+
+The master hands out tasks one at a time to whichever worker speaks first (dynamic
+scheduling: Iprobe plus 10 ms sleeps, so an idle master costs no core) and passes each
+result to a callback; a worker says "ready", then loops: receive a task, send back its
+result, until told to stop. Tasks and results are pickled Python objects. SIGTERM (what
+SLURM sends at the time limit) and Ctrl-C set :class:`Stop`, which makes the master hand
+out nothing more.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from typing import Any, Callable, Iterable
+
+__all__ = ["TAGS", "Stop", "farm", "serve", "release"]
+
+#: Message tags between master and workers, in one place.
+TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4}
+
+
+class Stop:
+    """Turns SIGTERM into a flag the master polls (SLURM's time limit)."""
+
+    def __init__(self):
+        self.requested = False
+        self._previous = signal.signal(signal.SIGTERM, self._handle)
+
+    def _handle(self, signum, frame):
+        self.requested = True
+
+    def restore(self):
+        signal.signal(signal.SIGTERM, self._previous)
+
+
+def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop) -> None:
+    """Master side: every task of ``todo`` to a worker, ``record(result)`` for each
+    result; returns when all workers are stopped (or at once when ``stop`` is set)."""
+    from mpi4py import MPI
+
+    status = MPI.Status()
+    queue = list(todo)
+    busy = comm.Get_size() - 1  # every worker says "ready" first, then returns results
+    while busy:
+        while not comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
+            if stop.requested:
+                return
+            time.sleep(0.01)
+        message = comm.recv(source=status.Get_source(), tag=status.Get_tag(), status=status)
+        worker = status.Get_source()
+        if status.Get_tag() == TAGS["result"]:
+            record(message)
+        if queue and not stop.requested:
+            comm.send(queue.pop(0), dest=worker, tag=TAGS["work"])
+        else:
+            comm.send(None, dest=worker, tag=TAGS["stop"])
+            busy -= 1
+
+
+def serve(comm, work: Callable[[Any], Any]) -> None:
+    """Worker side: ``work(task)`` for every task the master sends, until "stop"."""
+    from mpi4py import MPI
+
+    status = MPI.Status()
+    comm.send(None, dest=0, tag=TAGS["ready"])
+    while True:
+        task = comm.recv(source=0, tag=MPI.ANY_TAG, status=status)
+        if status.Get_tag() == TAGS["stop"]:
+            return
+        comm.send(work(task), dest=0, tag=TAGS["result"])
+
+
+def release(comm) -> None:
+    """Master side, before any task was sent: let every worker go (the master failed
+    early, e.g. on a refused file; the workers must not wait forever)."""
+    for worker in range(1, comm.Get_size()):
+        comm.send(None, dest=worker, tag=TAGS["stop"])
