@@ -22,6 +22,7 @@ import numpy as np
 from . import geometry
 from ._toml import Table
 from .errors import GeometryError, SceneError
+from .calibration import CalibrationSettings, read_calibration
 from .poses import read_pose
 from .layout import SHAPES, Layout, check_layout, grid_layout
 
@@ -168,6 +169,7 @@ class Scene:
     multistart: MultistartSettings
     petsc_options: tuple[tuple[str, str], ...]
     source: str
+    calibration: CalibrationSettings | None = None
 
     @property
     def thickness_mm(self) -> float:
@@ -230,11 +232,13 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(path, "multistart.k_min",
                          f"k_min = {multistart.k_min} exceeds k_max = {multistart.k_max}")
     petsc = _read_petsc(root.table("petsc", required=False))
+    calibration = read_calibration(root.table("calibration", required=False), poses)
     root.finish()
     sheet.setflags(write=False)
     return Scene(path=path, name=name, description=description, sheet_outline_mm=sheet,
                  layers=layers, layout=layout, min_gap_mm=min_gap, mesh=mesh, poses=poses, elastic=elastic,
-                 optimizer=optimizer, multistart=multistart, petsc_options=petsc, source=source)
+                 optimizer=optimizer, multistart=multistart, petsc_options=petsc, source=source,
+                 calibration=calibration)
 
 
 def _read_sheet(t: Table) -> np.ndarray:
