@@ -16,11 +16,11 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 
 from .. import __version__
 from ..errors import MscapError
-from . import capacitance, inspect, merge, mesh, optimize, plot, run, simulate
+from . import calibrate, capacitance, inspect, merge, mesh, optimize, plot, readout, run, simulate
 
 __all__ = ["main"]
 
-_COMMANDS = (mesh, capacitance, simulate, optimize, run, inspect, merge, plot)
+_COMMANDS = (mesh, capacitance, simulate, optimize, run, inspect, merge, plot, calibrate, readout)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,522 @@
+"""Multiplexed read-out of a capacitor array (paper appendix C).
+
+The top plates of an m × n array are joined by column (n column leads), the bottom
+plates by row (m row leads). Each lead is switched to GND (0) or LOGIC (1) by its own
+SPDT switch; capacitor ij is active iff its two leads differ, ``c_ij = a_j XOR b_i``. One
+lead pattern gives one reading
+
+    r = Σ_active C_ij + n_ON · C_ON + n_OFF · C_OFF,
+
+where a switch is *ON* when its lead is at LOGIC and *OFF* at GND, so ``n_ON`` is the
+number of leads at 1 and ``n_ON + n_OFF = m + n``. Stacking p patterns gives ``M γ = r``
+with the unknowns ``γ = (C of each capacitor, in capacitor order; C_ON; C_OFF)``.
+
+A pattern is a row of ``m + n`` bits: the row leads ``b_0 … b_{m-1}`` first, then the
+column leads ``a_0 … a_{n-1}``. ``docs/readout.md`` has the measured numbers.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from .errors import MscapError
+
+__all__ = ["ReadoutError", "C_ON_PF", "C_OFF_PF", "MAX_ALL_LEADS", "MAX_DEFAULT_ALL_LEADS",
+           "MAX_ENUMERATED_CANDIDATE_LEADS", "MAX_RANDOM_CANDIDATES", "CapacitorArray", "grid_array",
+           "all_patterns", "random_patterns", "MeasurementMatrix", "measurement_matrix", "check_rank", "Recovered",
+           "ideal_readings", "recover", "noise_gain", "error_bound", "PatternChoice", "optimise_patterns",
+           "default_patterns", "ReadingNoise", "ReadoutErrors", "simulate_readout"]
+
+log = logging.getLogger(__name__)
+
+#: Parasitic capacitance of one SPDT switch (ADG333A) ON and OFF, paper appendix C (pF).
+C_ON_PF = 35.0
+C_OFF_PF = 12.0
+#: ``all_patterns`` refuses arrays with more leads (2**20 patterns).
+MAX_ALL_LEADS = 20
+#: The default pattern set is every pattern up to this many leads (2**10 readings).
+MAX_DEFAULT_ALL_LEADS = 10
+#: ``optimise_patterns`` draws its candidates from every pattern up to this many leads,
+#: else from ``MAX_RANDOM_CANDIDATES`` random ones.
+MAX_ENUMERATED_CANDIDATE_LEADS = 11
+MAX_RANDOM_CANDIDATES = 1024
+# A null-space projector entry above this ties unknowns together (a singular value below
+# s_max · max(M.shape) · eps counts as zero, numpy's rule, see MeasurementMatrix.rank).
+_NULL_TOL = 1e-9
+
+
+class ReadoutError(MscapError):
+    """An array, a pattern set or readings that cannot give the capacitances."""
+
+
+# ---------------------------------------------------------------- the array
+@dataclass(frozen=True)
+class CapacitorArray:
+    """How the capacitors of a design are wired: ``rows`` × ``columns`` slots.
+
+    ``slots[i] = (row, column)`` is the slot of capacitor i; slots holding no capacitor
+    stay empty (their leads still exist but add nothing).
+    """
+
+    rows: int
+    columns: int
+    slots: tuple[tuple[int, int], ...]
+
+    def __post_init__(self):
+        if self.rows < 1 or self.columns < 1:
+            raise ReadoutError(f"array: rows and columns must be >= 1, got {self.rows} x {self.columns}")
+        if not self.slots:
+            raise ReadoutError("array: no capacitors")
+        for i, (r, c) in enumerate(self.slots):
+            if not (0 <= r < self.rows and 0 <= c < self.columns):
+                raise ReadoutError(f"array: capacitor {i} in slot [{r},{c}] outside the "
+                                   f"{self.rows} x {self.columns} array")
+        if len(set(self.slots)) < len(self.slots):
+            seen = {}
+            for i, slot in enumerate(self.slots):
+                if slot in seen:
+                    raise ReadoutError(f"array: capacitors {seen[slot]} and {i} share slot [{slot[0]},{slot[1]}]")
+                seen[slot] = i
+
+    @property
+    def k(self) -> int:
+        """Number of capacitors."""
+        return len(self.slots)
+
+    @property
+    def n_leads(self) -> int:
+        """``rows + columns``: the bits of a pattern."""
+        return self.rows + self.columns
+
+    @property
+    def n_unknowns(self) -> int:
+        """``k + 2``: the capacitors, C_ON and C_OFF."""
+        return self.k + 2
+
+    @property
+    def unknown_names(self) -> tuple[str, ...]:
+        """``("C[0,0] (capacitor 0)", …, "C_ON", "C_OFF")``, the order of γ."""
+        return tuple(f"C[{r},{c}] (capacitor {i})" for i, (r, c) in enumerate(self.slots)) + ("C_ON", "C_OFF")
+
+    def grid(self) -> np.ndarray:
+        """``(rows, columns)`` capacitor index per slot, -1 where empty."""
+        grid = np.full((self.rows, self.columns), -1, dtype=np.int64)
+        for i, (r, c) in enumerate(self.slots):
+            grid[r, c] = i
+        return grid
+
+
+def grid_array(k: int, rows: int | None = None, columns: int | None = None) -> CapacitorArray:
+    """The default wiring of ``k`` capacitors: filled row by row.
+
+    Without ``rows``/``columns``: ``rows = ceil(sqrt(k))``, ``columns = ceil(k / rows)``;
+    given one, the other is the smallest that fits. Capacitor i sits in slot
+    ``(i // columns, i % columns)``.
+
+    Raises
+    ------
+    ReadoutError
+        ``k < 1`` or the ``rows`` × ``columns`` array has fewer than k slots.
+    """
+    if k < 1:
+        raise ReadoutError(f"array: need at least one capacitor, got k = {k}")
+    if rows is None and columns is None:
+        rows = math.isqrt(k - 1) + 1
+    if (rows is not None and rows < 1) or (columns is not None and columns < 1):
+        raise ReadoutError(f"array: rows and columns must be >= 1, got rows = {rows}, columns = {columns}")
+    rows = rows if rows is not None else -(-k // columns)
+    columns = columns if columns is not None else -(-k // rows)
+    if rows * columns < k:
+        raise ReadoutError(f"array: {k} capacitors do not fit a {rows} x {columns} array (rows x columns < k)")
+    return CapacitorArray(rows, columns, tuple((i // columns, i % columns) for i in range(k)))
+
+
+# ---------------------------------------------------------------- patterns
+def all_patterns(array: CapacitorArray) -> np.ndarray:
+    """Every lead pattern, ``(2**(m+n), m+n)`` 0/1, lead 0 the most significant bit.
+
+    Raises
+    ------
+    ReadoutError
+        More than ``MAX_ALL_LEADS`` leads.
+    """
+    n = array.n_leads
+    if n > MAX_ALL_LEADS:
+        raise ReadoutError(f"all patterns: a {array.rows} x {array.columns} array has {n} leads, i.e. "
+                           f"2**{n} patterns; at most {MAX_ALL_LEADS} leads (use optimised patterns)")
+    return ((np.arange(2 ** n)[:, None] >> np.arange(n - 1, -1, -1)) & 1).astype(np.int8)
+
+
+def random_patterns(array: CapacitorArray, count: int, seed: int = 0) -> np.ndarray:
+    """Up to ``count`` distinct random patterns (fewer if duplicates were drawn), sorted."""
+    bits = np.random.default_rng(seed).integers(0, 2, (count, array.n_leads), dtype=np.int8)
+    return np.unique(bits, axis=0)
+
+
+def _checked_patterns(array: CapacitorArray, patterns) -> np.ndarray:
+    bits = np.asarray(patterns)
+    if bits.ndim != 2 or bits.shape[1] != array.n_leads or len(bits) == 0:
+        raise ReadoutError(f"patterns: expected shape (p >= 1, {array.n_leads}) ({array.rows} row leads "
+                           f"then {array.columns} column leads), got {bits.shape}")
+    if not np.isin(bits, (0, 1)).all():
+        raise ReadoutError(f"patterns: lead states must be 0 (GND) or 1 (LOGIC), got {np.unique(bits)}")
+    return bits.astype(np.int8)
+
+
+def _rows(array: CapacitorArray, bits: np.ndarray) -> np.ndarray:
+    """The rows of M for 0/1 patterns ``bits`` (no checks)."""
+    row, column = np.array(array.slots).T
+    active = bits[:, row] ^ bits[:, array.rows + column]
+    n_on = bits.sum(axis=1, dtype=np.int64)
+    return np.column_stack([active, n_on, array.n_leads - n_on]).astype(float)
+
+
+# ---------------------------------------------------------------- the linear system
+@dataclass(frozen=True, eq=False)
+class MeasurementMatrix:
+    """``M`` of a pattern set: one row per pattern, one column per unknown
+    (``array.unknown_names``)."""
+
+    array: CapacitorArray
+    patterns: np.ndarray
+    matrix: np.ndarray
+
+    @cached_property
+    def _svd(self) -> tuple[np.ndarray, np.ndarray]:
+        _, s, vt = np.linalg.svd(self.matrix, full_matrices=True)
+        return s, vt
+
+    @property
+    def rank(self) -> int:
+        """Numerical rank (numpy's tolerance: s_max · max(p, u) · eps)."""
+        s, _ = self._svd
+        return int((s > s.max() * max(self.matrix.shape) * np.finfo(float).eps).sum())
+
+    @property
+    def condition_number(self) -> float:
+        """2-norm condition number s_max / s_min (inf when rank deficient)."""
+        s, _ = self._svd
+        return float(s[0] / s[-1]) if self.rank == self.array.n_unknowns else math.inf
+
+    def null_space(self) -> np.ndarray:
+        """Orthonormal rows spanning the null space, ``(u - rank, u)``."""
+        return self._svd[1][self.rank:]
+
+
+def measurement_matrix(array: CapacitorArray, patterns) -> MeasurementMatrix:
+    """``M`` for ``patterns`` (p, m+n): per row the XOR indicator of each capacitor, then
+    n_ON (leads at 1) and n_OFF (leads at 0)."""
+    bits = _checked_patterns(array, patterns)
+    bits.setflags(write=False)
+    matrix = _rows(array, bits)
+    matrix.setflags(write=False)
+    return MeasurementMatrix(array, bits, matrix)
+
+
+def _join(names: list[str]) -> str:
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def _inseparable(m: MeasurementMatrix) -> list[str]:
+    """One sentence per group of unknowns that the readings do not separate."""
+    null = m.null_space()
+    projector = null.T @ null          # basis-independent: P_ij != 0 ties unknowns i and j
+    names = m.array.unknown_names
+    linked = np.abs(projector) > _NULL_TOL
+    unassigned = set(np.flatnonzero(np.diag(projector) > _NULL_TOL))
+    zero, sentences = [], []
+    while unassigned:
+        group, frontier = set(), {min(unassigned)}
+        while frontier:
+            group |= frontier
+            frontier = set(np.flatnonzero(linked[list(frontier)].any(axis=0))) - group
+        unassigned -= group
+        group = sorted(group)
+        who = _join([names[j] for j in group])
+        columns = m.matrix[:, group]
+        if len(group) == 1:            # P e_j = e_j: column j of M is zero
+            zero.append(names[group[0]])
+        elif np.all(columns == columns[:, :1]):
+            sentences.append(f"{who} enter every reading together (identical columns of M)")
+        else:
+            missing = np.linalg.matrix_rank(null[:, group])
+            sentences.append(f"{who} cannot be separated: the readings determine only "
+                             f"{len(group) - missing} combination(s) of these {len(group)} unknowns")
+    if zero:
+        sentences.insert(0, f"{_join(zero)} never enter{'s' if len(zero) == 1 else ''} a reading "
+                            f"(zero column{'' if len(zero) == 1 else 's'} of M)")
+    return sentences
+
+
+def check_rank(m: MeasurementMatrix) -> float:
+    """Return the condition number of ``m``, or refuse a rank-deficient pattern set.
+
+    Raises
+    ------
+    ReadoutError
+        ``rank(M) <`` the number of unknowns; the message names the capacitances
+        (``C[row,column] (capacitor i)``, ``C_ON``, ``C_OFF``) the readings cannot separate.
+    """
+    u, (p, _) = m.array.n_unknowns, m.matrix.shape
+    if m.rank < u:
+        few = f" (only {p} readings)" if p < u else ""
+        raise ReadoutError(f"pattern set of {p} readings has rank {m.rank} < {u} unknowns{few}, condition number "
+                           f"inf: " + "; ".join(_inseparable(m)))
+    return m.condition_number
+
+
+@dataclass(frozen=True, eq=False)
+class Recovered:
+    """Least-squares capacitances (..., k) and switch parasitics (...), pF."""
+
+    capacitance_pF: np.ndarray
+    c_on_pF: np.ndarray
+    c_off_pF: np.ndarray
+
+
+def ideal_readings(m: MeasurementMatrix, capacitance_pF, c_on_pF: float = C_ON_PF,
+                   c_off_pF: float = C_OFF_PF) -> np.ndarray:
+    """Noise-free readings ``M γ`` (..., p) of capacitances (..., k)."""
+    capacitance = np.asarray(capacitance_pF, dtype=float)
+    k = m.array.k
+    if capacitance.ndim < 1 or capacitance.shape[-1] != k:
+        raise ReadoutError(f"capacitances: expected (..., {k}) for {k} capacitors, got shape {capacitance.shape}")
+    parasitic = m.matrix[:, k] * c_on_pF + m.matrix[:, k + 1] * c_off_pF
+    return capacitance @ m.matrix[:, :k].T + parasitic
+
+
+def recover(m: MeasurementMatrix, readings) -> Recovered:
+    """Solve ``M γ = r`` in the least-squares sense for readings (..., p).
+
+    Raises
+    ------
+    ReadoutError
+        The pattern set is rank deficient (see ``check_rank``) or the readings do not
+        match it.
+    """
+    check_rank(m)
+    r = np.asarray(readings, dtype=float)
+    p, u = m.matrix.shape
+    if r.ndim < 1 or r.shape[-1] != p:
+        raise ReadoutError(f"readings: expected (..., {p}) for {p} patterns, got shape {r.shape}")
+    gamma = np.linalg.lstsq(m.matrix, r.reshape(-1, p).T, rcond=None)[0].T.reshape(r.shape[:-1] + (u,))
+    k = m.array.k
+    return Recovered(gamma[..., :k], gamma[..., k], gamma[..., k + 1])
+
+
+def noise_gain(m: MeasurementMatrix) -> np.ndarray:
+    """Per unknown, ``sqrt(((MᵀM)⁻¹)_jj)``: the error std per unit std of independent
+    reading noise (< 1: the overdetermined system averages the noise down)."""
+    check_rank(m)
+    return np.sqrt(np.diag(np.linalg.inv(m.matrix.T @ m.matrix)))
+
+
+def error_bound(m: MeasurementMatrix, additive_pF: float) -> float:
+    """``‖M⁺‖_∞ · additive_pF``: no recovered unknown is off by more when every reading
+    is off by at most ``additive_pF``."""
+    check_rank(m)
+    return float(np.abs(np.linalg.pinv(m.matrix)).sum(axis=1).max() * additive_pF)
+
+
+# ---------------------------------------------------------------- choosing patterns
+@dataclass(frozen=True, eq=False)
+class PatternChoice:
+    """An optimised pattern set (may repeat a pattern: a repeated reading averages noise).
+
+    ``start_condition_number`` is that of the greedy start, ``condition_number`` that
+    after the exchange sweeps.
+    """
+
+    patterns: np.ndarray
+    condition_number: float
+    start_condition_number: float
+    candidates: int
+    sweeps: int
+
+
+def _cond_of_gram(gram: np.ndarray) -> float:
+    """cond(M) from the eigenvalues of its Gram matrix MᵀM."""
+    lam = np.linalg.eigvalsh(gram)
+    return math.sqrt(lam[-1] / lam[0]) if lam[0] > lam[-1] * 1e-13 else math.inf
+
+
+def _cond_with_row(gram: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """cond(M) after appending each of ``rows`` to M, given ``gram = MᵀM``.
+
+    The extreme eigenvalues of ``gram + x xᵀ`` are roots of the secular equation
+    ``1 + Σ z_i² / (μ_i − λ) = 0`` (μ, V the eigenpairs of gram, z = Vᵀx) and interlace:
+    λ_min in [μ_1, μ_2], λ_max in [μ_u, μ_u + |z|²]. Bisection there costs O(u) per
+    candidate instead of an O(u³) eigensolve.
+    """
+    mu, v = np.linalg.eigh(gram)
+    z2 = (rows @ v) ** 2
+
+    def root(lo, hi):
+        for _ in range(40):       # f increases between poles: bisect on its sign
+            mid = (lo + hi) / 2
+            with np.errstate(divide="ignore", invalid="ignore"):
+                f = 1 + (z2 / (mu - mid[:, None])).sum(axis=1)
+            lo, hi = np.where(f > 0, lo, mid), np.where(f > 0, mid, hi)
+        return (lo + hi) / 2
+
+    ones = np.ones(len(rows))
+    low = root(mu[0] * ones, mu[1] * ones)
+    high = root(mu[-1] * ones, mu[-1] + z2.sum(axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(low > high * 1e-13, np.sqrt(high / low), np.inf)
+
+
+def _exchange(x: np.ndarray, chosen: list[int], max_sweeps: int) -> tuple[list[int], float, int]:
+    """Exchange sweeps on the rows ``x[chosen]``: each chosen row in turn is replaced by
+    the candidate that lowers cond(M) most, until a sweep changes nothing."""
+    chosen = list(chosen)
+    gram = x[chosen].T @ x[chosen]
+    current = _cond_of_gram(gram)
+    sweeps = 0
+    for sweeps in range(1, max_sweeps + 1):
+        changed = False
+        for position in range(len(chosen)):
+            old = x[chosen[position]]
+            rest = gram - np.outer(old, old)
+            best = int(np.argmin(_cond_with_row(rest, x)))
+            trial = rest + np.outer(x[best], x[best])
+            cond = _cond_of_gram(trial)     # exact, so that bisection round-off never accepts a worse set
+            if cond < current * (1 - 1e-9):
+                chosen[position], current, gram, changed = best, cond, trial, True
+        if not changed:
+            break
+    return chosen, current, sweeps
+
+
+def optimise_patterns(array: CapacitorArray, size: int | None = None, candidates=None, seed: int = 0,
+                      starts: int = 4, max_sweeps: int = 50) -> PatternChoice:
+    """``size`` patterns (default 2 × unknowns) minimising cond(M).
+
+    Candidates: ``candidates`` if given, else every pattern when there are at most
+    ``MAX_ENUMERATED_CANDIDATE_LEADS`` leads, else ``MAX_RANDOM_CANDIDATES`` random ones
+    drawn with ``seed``. Exchange sweeps (see ``_exchange``) improve ``starts`` start
+    sets: a greedy D-optimal one (each step adds the candidate of largest leverage
+    xᵀ(MᵀM + εI)⁻¹x), then random draws of distinct candidates (``seed``); the best
+    result wins. Exchange is a local search: one start can stall (2 × 2, 12 readings:
+    7.04 from the greedy start, 6.43 from the best of four).
+
+    Raises
+    ------
+    ReadoutError
+        ``size`` below the number of unknowns, or candidates that cannot reach full rank.
+    """
+    u = array.n_unknowns
+    size = 2 * u if size is None else int(size)
+    if size < u:
+        raise ReadoutError(f"optimised patterns: {size} readings cannot determine {u} unknowns")
+    rng = np.random.default_rng(seed)
+    if candidates is None:
+        candidates = (all_patterns(array) if array.n_leads <= MAX_ENUMERATED_CANDIDATE_LEADS
+                      else random_patterns(array, MAX_RANDOM_CANDIDATES, seed))
+    bits = _checked_patterns(array, candidates)
+    x = _rows(array, bits)
+
+    greedy, inverse = [], np.eye(u) / 1e-6      # (MᵀM + εI)⁻¹ of the empty set, ε = 1e-6
+    for _ in range(size):
+        leverage = np.einsum("ci,ij,cj->c", x, inverse, x)
+        best = int(np.argmax(leverage))
+        greedy.append(best)
+        w = inverse @ x[best]
+        inverse -= np.outer(w, w) / (1 + leverage[best])
+    start = _cond_of_gram(x[greedy].T @ x[greedy])
+    if not math.isfinite(start):
+        raise ReadoutError(f"optimised patterns: the {len(bits)} candidate patterns cannot separate all "
+                           f"{u} unknowns; " + "; ".join(_inseparable(measurement_matrix(array, bits))))
+    firsts = [greedy] + [list(rng.choice(len(bits), size, replace=size > len(bits))) for _ in range(starts - 1)]
+    chosen, final, sweeps = min((_exchange(x, first, max_sweeps) for first in firsts), key=lambda r: r[1])
+    log.info("optimised %d patterns of %d candidates: cond %.4g (greedy start) -> %.4g (best of %d starts)",
+             size, len(bits), start, final, len(firsts))
+    return PatternChoice(bits[chosen], measurement_matrix(array, bits[chosen]).condition_number, start,
+                         len(bits), sweeps)
+
+
+def default_patterns(array: CapacitorArray, seed: int = 0) -> np.ndarray:
+    """Every pattern up to ``MAX_DEFAULT_ALL_LEADS`` leads (2**(m+n) readings), else
+    the optimised set of 2 × unknowns from the greedy start alone."""
+    if array.n_leads <= MAX_DEFAULT_ALL_LEADS:
+        return all_patterns(array)
+    # Random starts did not help at this size and cost 5x (6 x 6: cond 24.34 either way,
+    # 5 s with one start, 27 s with four).
+    return optimise_patterns(array, seed=seed, starts=1).patterns
+
+
+# ---------------------------------------------------------------- noisy read-outs
+@dataclass(frozen=True)
+class ReadingNoise:
+    """The project's noise model.
+
+    Per run, each capacitor's true capacitance is scaled by ``1 + U(-relative, relative)``
+    (a fabrication/drift shift the readout cannot and should not remove); per reading,
+    ``U(-additive_pF, additive_pF)`` is added (std ``additive_pF / sqrt(3)``).
+    """
+
+    relative: float = 0.15
+    additive_pF: float = 2.0
+
+    def __post_init__(self):
+        if not 0 <= self.relative < 1:
+            raise ReadoutError(f"noise: relative shift must be in [0, 1), got {self.relative}")
+        if not self.additive_pF >= 0:
+            raise ReadoutError(f"noise: additive reading noise must be >= 0 pF, got {self.additive_pF}")
+
+    @property
+    def additive_std_pF(self) -> float:
+        return self.additive_pF / math.sqrt(3)
+
+
+@dataclass(frozen=True, eq=False)
+class ReadoutErrors:
+    """Recovered minus (shifted) true values of ``runs`` simulated read-outs.
+
+    Arrays lead with the run axis: ``(runs, [poses,] k)`` for capacitors and
+    ``(runs, [poses])`` for C_ON, C_OFF and the summaries.
+    """
+
+    true_capacitance_pF: np.ndarray
+    capacitance_error_pF: np.ndarray
+    c_on_error_pF: np.ndarray
+    c_off_error_pF: np.ndarray
+
+    @property
+    def max_abs_pF(self) -> np.ndarray:
+        """Largest |error| over the capacitors, per run (and pose)."""
+        return np.abs(self.capacitance_error_pF).max(axis=-1)
+
+    @property
+    def rms_pF(self) -> np.ndarray:
+        """RMS error over the capacitors, per run (and pose)."""
+        return np.sqrt(np.mean(self.capacitance_error_pF ** 2, axis=-1))
+
+
+def simulate_readout(m: MeasurementMatrix, capacitance_pF, c_on_pF: float = C_ON_PF, c_off_pF: float = C_OFF_PF,
+                     noise: ReadingNoise = ReadingNoise(), runs: int = 100, seed: int = 0) -> ReadoutErrors:
+    """Read ``capacitance_pF`` (k,) or (poses, k) ``runs`` times with ``noise`` and recover it.
+
+    A run shifts each capacitor once (the same shift in every pose: one fabricated
+    sensor), then reads every pose with fresh additive noise on each reading. The
+    errors are against the shifted truth; C_ON and C_OFF are not shifted.
+    """
+    check_rank(m)
+    capacitance = np.asarray(capacitance_pF, dtype=float)
+    if capacitance.ndim not in (1, 2) or not np.isfinite(capacitance).all():
+        raise ReadoutError(f"capacitances: expected finite (k,) or (poses, k), got shape {capacitance.shape}")
+    if runs < 1:
+        raise ReadoutError(f"runs must be >= 1, got {runs}")
+    rng = np.random.default_rng(seed)
+    k = m.array.k
+    shift = rng.uniform(-noise.relative, noise.relative, (runs,) + (1,) * (capacitance.ndim - 1) + (k,))
+    truth = capacitance * (1 + shift)
+    readings = ideal_readings(m, truth, c_on_pF, c_off_pF)
+    readings += rng.uniform(-noise.additive_pF, noise.additive_pF, readings.shape)
+    found = recover(m, readings)
+    return ReadoutErrors(truth, found.capacitance_pF - truth, found.c_on_pF - c_on_pF, found.c_off_pF - c_off_pF)
