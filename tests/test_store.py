@@ -342,3 +342,34 @@ def test_a_file_of_another_schema_version_is_refused(tmp_path):
     with pytest.raises(StoreError, match=rf"schema_version {SCHEMA_VERSION + 1}; this mscap writes {SCHEMA_VERSION}"):
         open_store(out, scene)
     open_store(out, scene, force=True).close()  # --force starts over
+
+
+def test_read_design_takes_the_chosen_or_named_run(tmp_path, scene):
+    from mscap.store import read_design, split_design_spec
+
+    assert split_design_spec("out/a.h5") == ("out/a.h5", None)
+    assert split_design_spec("out/a.h5:k2_s0001_random") == ("out/a.h5", "k2_s0001_random")
+    assert split_design_spec("/a:b/c.hdf5") == ("/a:b/c.hdf5", None)
+    path = tmp_path / "r.h5"
+    with open_store(path, scene) as store:
+        empty_error = pytest.raises(StoreError, match="no successful run")
+        with empty_error:
+            read_design(store, None)
+        for rec in (synthetic_record(2, 1, scale=1.0), synthetic_record(3, 2, scale=5.0),
+                    failed_record(4, 3, "random", "MeshError: boom", 1.0)):
+            write_run(store, rec)
+        write_selection(store, store_selection(store))
+    with read_store(path) as store:
+        chosen = store_selection(store).chosen_run
+        best = read_design(store)
+        assert best.run_id == chosen and best.label == chosen and best.which == "final"
+        rec = read_run(store, chosen)
+        assert len(best.outlines) == rec.k
+        np.testing.assert_array_equal(best.capacitance_pF, rec.final_capacitance_pF)
+        first = read_design(store, "k2_s0001_random", "initial")
+        assert first.label == "k2_s0001_random:initial"
+        np.testing.assert_array_equal(first.outlines[0], synthetic_record(2, 1).initial_outlines[0])
+        with pytest.raises(StoreError, match="failed .*MeshError: boom"):
+            read_design(store, "k4_s0003_random")
+        with pytest.raises(StoreError, match="no run 'k9'"):
+            read_design(store, "k9")
