@@ -86,10 +86,12 @@ def settings(scene) -> CalibrationSettings:
 
 
 def physics_sha256(scene) -> str:
-    """Hash of everything in the scene that changes a simulated capacitance: the scene's
-    data without ``[calibration]``, plus the family (template, parameters, values)."""
+    """Hash of everything in the scene that can change a simulated capacitance: the
+    scene's data without the tables that cannot (``[calibration]``, ``[optimizer]``,
+    ``[multistart]``, name and description)."""
     data = tomllib.loads(scene.source)
-    data.pop("calibration", None)
+    for key in ("calibration", "optimizer", "multistart", "name", "description"):
+        data.pop(key, None)
     text = json.dumps(data, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
 

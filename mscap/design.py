@@ -40,7 +40,7 @@ from .elastic import ElasticError
 from .errors import GeometryError, MscapError, SceneError
 from .loading import loading_for
 from .newton import Operator, solve_pose
-from .objective import Dissimilarity, LaplacianSmoothing, layout_objective
+from .objective import DISTANCES, LaplacianSmoothing, capacitance_term, layout_objective
 from .petsc import LinearSolver
 from .simulate import PoseResult, Simulation, elastic_setup, simulate
 from .transfer import p1_matrix
@@ -166,7 +166,7 @@ class Design:
             iterations.append(0 if state is None else state.newton_iterations)
         sim = replace(sim, poses=tuple(results))
         capacitance = sim.capacitance_pF
-        d = Dissimilarity(scene.optimizer.tau_pF2).value(capacitance)
+        d = capacitance_term(scene).value(capacitance)
         settings = scene.optimizer
         J = -d + settings.barrier_weight * barrier + settings.smoothing_weight * smoothing
         if not np.isfinite(J):
@@ -181,7 +181,7 @@ class Design:
             raise DesignError("this evaluation's factorisations were released; evaluate again")
         scene, settings = self.scene, self.scene.optimizer
         objective = layout_objective(scene)
-        dJ_dC = -Dissimilarity(settings.tau_pF2).gradient(e.capacitance_pF)
+        dJ_dC = -capacitance_term(scene).gradient(e.capacitance_pF)
         g_fine = np.zeros_like(e.sim.mesh.points)
         g_elastic = None if e.sim.elastic is None else np.zeros((e.sim.elastic.n_vertices, 3))
         for i in range(len(scene.poses)):
@@ -257,7 +257,10 @@ def build_design(scene, *, layout=None, control_spacing_mm: float | None = None,
     if (method or settings.skinning) not in METHODS:
         raise SceneError(scene.path, "optimizer.skinning", f"unknown value {method or settings.skinning!r}; "
                          f"expected one of {', '.join(METHODS)}")
-    for key in ("control_spacing_mm", "first_step_mm", "max_step_mm", "tau_pF2"):
+    if settings.distance not in DISTANCES:
+        raise SceneError(scene.path, "optimizer.distance", f"unknown value {settings.distance!r}; "
+                         f"expected one of {', '.join(DISTANCES)}")
+    for key in ("control_spacing_mm", "first_step_mm", "max_step_mm", "tau_pF2", "tau_noise"):
         if not getattr(settings, key) > 0:
             raise SceneError(scene.path, f"optimizer.{key}", f"must be > 0, got {getattr(settings, key)!r}")
     if len(scene.poses) < 2:

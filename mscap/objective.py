@@ -48,7 +48,7 @@ from scipy.spatial import cKDTree
 from .contact import barrier, barrier_derivatives
 from .errors import GeometryError, MscapError
 
-__all__ = ["Dissimilarity", "SeparationBarrier", "LaplacianSmoothing", "Weighted", "Sum",
+__all__ = ["Dissimilarity", "NoiseWeightedDissimilarity", "DISTANCES", "capacitance_term", "SeparationBarrier", "LaplacianSmoothing", "Weighted", "Sum",
            "LayoutObjective", "layout_objective"]
 
 
@@ -107,6 +107,43 @@ class Dissimilarity(_Term):
         w[a, b] = weight / total  # ∂d/∂D_ab: a softmax, summing to 1
         w += w.T
         return float(low - self.tau_pF2 * np.log(total)), 2 * np.einsum("ab,abk->ak", w, diff)
+
+
+@dataclass(frozen=True)
+class NoiseWeightedDissimilarity(_Term):
+    """:class:`Dissimilarity` of capacitances measured in read-out noise: capacitor j's
+    column is divided by its noise standard deviation
+
+        σ_j = sqrt((s C̄_j)² + a²) / √3,
+
+    the std of appendix A's noise (a uniform ±s relative shift and a uniform ±a pF
+    offset) at C̄_j, the mean of C_j over the poses. Distances are then in noise standard
+    deviations (dimensionless), ``tau`` too. Growing every plate scales all differences
+    and σ alike, so, unlike the pF distance, this one rewards plates only for reading
+    the poses apart *relative* to their own size (and to a pF)."""
+
+    tau: float = 0.05
+    relative_shift: float = 0.15
+    additive_pF: float = 2.0
+
+    def __post_init__(self):
+        if not self.tau > 0:
+            raise MscapError(f"[optimizer] tau_noise must be positive, got {self.tau!r}")
+        if not (self.relative_shift > 0 or self.additive_pF > 0):
+            raise MscapError("the noise-weighted distance needs a noise model with relative_shift > 0 "
+                             "or additive_pF > 0")
+
+    def value_and_gradient(self, capacitance_pF: np.ndarray) -> tuple[float, np.ndarray]:
+        """``d`` (noise std², dimensionless) and ``∂d/∂C`` (1/pF) for ``(n_poses, k)`` C."""
+        c = np.asarray(capacitance_pF, dtype=float)
+        n = len(c)
+        mean = c.mean(axis=0)
+        s2 = self.relative_shift**2
+        sigma = np.sqrt((s2 * mean**2 + self.additive_pF**2) / 3.0)
+        d, g_z = Dissimilarity(self.tau).value_and_gradient(c / sigma)
+        # z = C/σ(C̄): ∂d/∂C_bj = g_bj/σ_j − (Σ_a g_aj C_aj)/σ_j² · ∂σ_j/∂C̄_j / n
+        dsigma = s2 * mean / (3.0 * sigma)
+        return d, g_z / sigma - (np.sum(g_z * c, axis=0) / sigma**2 * dsigma / n)[None, :]
 
 
 def _point_edge(p, a, b):
@@ -323,13 +360,31 @@ class LayoutObjective:
         return self.barrier.max_step(outlines, directions, keep)
 
 
+#: ``[optimizer] distance``: how pose capacitance vectors are compared.
+DISTANCES = ("pF", "noise")
+
+
+def capacitance_term(scene) -> _Term:
+    """d of the scene: :class:`Dissimilarity` (``distance = "pF"``, ``tau_pF2``) or
+    :class:`NoiseWeightedDissimilarity` (``"noise"``, ``tau_noise``, with the
+    ``[calibration.noise]`` model when the scene has one, else appendix A's)."""
+    settings = scene.optimizer
+    if settings.distance == "pF":
+        return Dissimilarity(settings.tau_pF2)
+    from .calibration import NoiseModel
+
+    noise = scene.calibration.noise if scene.calibration is not None else NoiseModel()
+    return NoiseWeightedDissimilarity(settings.tau_noise, noise.relative_shift, noise.additive_pF)
+
+
 def layout_objective(scene, dhat_mm: float | None = None) -> LayoutObjective:
-    """J = −d + w_b B + w_s S from a scene's ``[optimizer]`` (``tau_pF2``,
-    ``barrier_weight``, ``smoothing_weight``) and ``[capacitors] min_gap_mm``."""
+    """J = −d + w_b B + w_s S from a scene's ``[optimizer]`` (``distance``, ``tau_pF2`` or
+    ``tau_noise``, ``barrier_weight``, ``smoothing_weight``) and ``[capacitors]
+    min_gap_mm``."""
     settings = scene.optimizer
     separation = SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm)
     return LayoutObjective(
-        capacitance=-1.0 * Dissimilarity(settings.tau_pF2),
+        capacitance=-1.0 * capacitance_term(scene),
         geometry=settings.barrier_weight * separation
         + settings.smoothing_weight * LaplacianSmoothing(),
         barrier=separation)

@@ -113,7 +113,9 @@ class ElasticSettings:
 class OptimizerSettings:
     """Design-optimisation settings (scene table ``[optimizer]``; :mod:`mscap.optimize`).
 
-    ``tau_pF2``, ``barrier_weight``, ``smoothing_weight``: the objective
+    ``distance`` (``"pF"`` or ``"noise"``: capacitance differences in pF, or in read-out
+    noise standard deviations), ``tau_pF2`` / ``tau_noise`` (the soft minimum's
+    temperature in those units), ``barrier_weight``, ``smoothing_weight``: the objective
     (:func:`mscap.objective.layout_objective`). ``max_iterations``: accepted L-BFGS steps
     per cascade level; ``cascade_levels``: doublings of the controls after the first
     level converges. ``control_spacing_mm``: arc length between control points on the
@@ -125,7 +127,9 @@ class OptimizerSettings:
     Remesh when a 2D angle drops below ``remesh_angle_deg`` (or below half the fresh
     mesh's smallest angle, if that is less)."""
 
+    distance: str = "pF"
     tau_pF2: float = 1.0
+    tau_noise: float = 0.05
     barrier_weight: float = 1.0
     smoothing_weight: float = 1e-3
     max_iterations: int = 100

@@ -45,6 +45,8 @@ SCENES = {
     "glue": glue,
     "stiff": lambda: stretch(1.2, 0.499),
     "extreme": lambda: stretch(2.0),
+    # d in read-out noise units (objective.NoiseWeightedDissimilarity)
+    "glue_noise": lambda: glue() | {"optimizer": {"distance": "noise", "tau_noise": 0.01}},
 }
 
 
@@ -113,6 +115,9 @@ def test_bad_optimizer_settings_name_the_key(tmp_path_factory):
         build_design(bad)
     bad = dataclasses.replace(scene, optimizer=dataclasses.replace(scene.optimizer, first_step_mm=0.0))
     with pytest.raises(SceneError, match="optimizer.first_step_mm"):
+        build_design(bad)
+    bad = dataclasses.replace(scene, optimizer=dataclasses.replace(scene.optimizer, distance="nF"))
+    with pytest.raises(SceneError, match="optimizer.distance: unknown value 'nF'"):
         build_design(bad)
     with pytest.raises(SceneError, match="at least 2"):
         build_design(dataclasses.replace(scene, poses=scene.poses[:1]))
