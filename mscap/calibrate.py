@@ -43,7 +43,7 @@ from .farm import Stop, farm, release, serve
 from .layout import Layout
 from .reconstruction import PoseErrors, fit, point_errors, score
 
-__all__ = ["CalibrationError", "Design", "FAMILIES", "physics_sha256", "family", "targets",
+__all__ = ["CalibrationError", "Design", "FAMILIES", "families", "physics_sha256", "family", "targets",
            "simulate_family", "read_cache", "evaluate", "DesignScore"]
 
 log = logging.getLogger(__name__)
@@ -96,9 +96,19 @@ def physics_sha256(scene) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def family(scene, which: str) -> tuple:
-    """The training or sequence poses of the scene's calibration."""
+def families(scene) -> tuple[str, ...]:
+    """The pose sets to simulate: training, sequence and ``reference_<pose>`` if the
+    calibration reads a reference pose (named by the pose: another reference is another
+    set, the cached ones stay valid)."""
     cal = settings(scene)
+    return FAMILIES + ((f"reference_{cal.reference}",) if cal.reference else ())
+
+
+def family(scene, which: str) -> tuple:
+    """The training, sequence or reference poses of the scene's calibration."""
+    cal = settings(scene)
+    if which.startswith("reference_"):
+        return tuple(p for p in scene.poses if p.name == which[len("reference_"):])
     template = next(p for p in scene.poses if p.name == cal.pose)
     return family_poses(template, cal.parameters, getattr(cal, which), which)
 
@@ -176,14 +186,17 @@ def _open_cache(path, scene) -> h5py.File:
 def _design_group(cache: h5py.File, design: Design, sizes: dict[str, int]) -> h5py.Group:
     designs = cache["designs"]
     if design.key in designs:
-        return designs[design.key]
-    g = designs.create_group(design.key)
-    g.attrs.update({"label": design.label, "k": design.k})
-    points = np.vstack(design.outlines)
-    offsets = np.cumsum([0] + [len(o) for o in design.outlines])
-    g.create_dataset("outline_points_mm", data=points)
-    g.create_dataset("outline_offsets", data=offsets.astype(np.int64))
+        g = designs[design.key]
+    else:
+        g = designs.create_group(design.key)
+        g.attrs.update({"label": design.label, "k": design.k})
+        points = np.vstack(design.outlines)
+        offsets = np.cumsum([0] + [len(o) for o in design.outlines])
+        g.create_dataset("outline_points_mm", data=points)
+        g.create_dataset("outline_offsets", data=offsets.astype(np.int64))
     for which, n in sizes.items():
+        if f"{which}_done" in g:
+            continue
         g.create_dataset(f"{which}_capacitance_pF", data=np.full((n, design.k), np.nan))
         g.create_dataset(f"{which}_done", data=np.zeros(n, dtype=bool))
         g.create_dataset(f"{which}_wall_s", data=np.zeros(n))
@@ -220,7 +233,8 @@ def simulate_family(scene, designs: list[Design], cache_path, comm=None,
 
     say = progress or (lambda m: None)
     comm = comm or MPI.COMM_WORLD
-    poses_of = {which: family(scene, which) for which in FAMILIES}
+    names = families(scene)
+    poses_of = {which: family(scene, which) for which in names}
     if comm.Get_rank() != 0:
         serve(comm, _work(scene, designs, poses_of))
         return
@@ -231,16 +245,18 @@ def simulate_family(scene, designs: list[Design], cache_path, comm=None,
         raise
     stop = Stop()
     try:
-        sizes = {which: len(poses_of[which]) for which in FAMILIES}
+        sizes = {which: len(poses_of[which]) for which in names}
         groups = [_design_group(cache, d, sizes).name for d in designs]
         n_workers = max(comm.Get_size() - 1, 1)
-        missing = [(i, which, ~cache[g][f"{which}_done"][()]) for i, g in enumerate(groups) for which in FAMILIES]
+        missing = [(i, which, ~cache[g][f"{which}_done"][()]) for i, g in enumerate(groups) for which in names]
         # about two chunks per worker, but at least 4 poses each (a chunk meshes once)
         size = max(4, math.ceil(sum(int(m.sum()) for *_, m in missing) / (2 * n_workers)))
         tasks = [_Task(i, which, a, b) for i, which, m in missing for a, b in _chunks(m, size)]
         total = sum(t.stop - t.start for t in tasks)
         say(f"{cache_path}: {len(designs)} designs × ({sizes['training']} training + "
-            f"{sizes['sequence']} sequence poses); {total} poses to simulate in {len(tasks)} chunks "
+            f"{sizes['sequence']} sequence poses"
+            + "".join(f" + reference pose {w[len('reference_'):]}" for w in names if w.startswith("reference_"))
+            + f"); {total} poses to simulate in {len(tasks)} chunks "
             f"on {n_workers} worker{'s' if n_workers > 1 else ''}")
         started, done = time.perf_counter(), 0
 
@@ -276,15 +292,15 @@ def simulate_family(scene, designs: list[Design], cache_path, comm=None,
             comm.Abort(0)
 
 
-def read_cache(cache_path, design: Design) -> dict[str, np.ndarray]:
-    """A design's cached ``training``/``sequence`` capacitances and wall times."""
+def read_cache(cache_path, design: Design, names=FAMILIES) -> dict[str, np.ndarray]:
+    """A design's cached capacitances and wall times of the pose sets ``names``."""
     with h5py.File(cache_path, "r") as f:
         if design.key not in f["designs"]:
             raise CalibrationError(f"{cache_path}: design {design.label} not simulated yet")
         g = f["designs"][design.key]
         out = {}
-        for which in FAMILIES:
-            if not g[f"{which}_done"][()].all():
+        for which in names:
+            if f"{which}_done" not in g or not g[f"{which}_done"][()].all():
                 raise CalibrationError(f"{cache_path}: design {design.label} has unsimulated "
                                        f"{which} poses; run the calibration again to complete it")
             out[which] = g[f"{which}_capacitance_pF"][()]
@@ -296,13 +312,13 @@ def read_cache(cache_path, design: Design) -> dict[str, np.ndarray]:
 @dataclass(frozen=True, eq=False)
 class DesignScore:
     """A design's reconstruction errors over the sequence (``errors``: runs × poses;
-    NaN columns for sequence poses that failed to simulate). ``reference`` is the mean
+    NaN columns for sequence poses that failed to simulate). ``no_signal`` is the mean
     point error per sequence pose of a sensor that tells nothing (always answering the
     mean training pose): errors near it mean the read-outs carry no usable signal."""
 
     design: Design
     errors: PoseErrors
-    reference: np.ndarray
+    no_signal: np.ndarray
     training_used: int
     training_failed: int
     samples: int
@@ -318,20 +334,27 @@ def evaluate(scene, designs: list[Design], cache_path, noise=None) -> list[Desig
     seq_y, _ = targets(scene, "sequence")
     scores = []
     for design in designs:
-        data = read_cache(cache_path, design)
+        data = read_cache(cache_path, design, families(scene))
         c_train, c_seq = data["training"], data["sequence"]
+        c_ref = None
+        if cal.reference:
+            c_ref = data[f"reference_{cal.reference}"][0]
+            if not (np.isfinite(c_ref).all() and (c_ref > 0).all()):
+                raise CalibrationError(f"design {design.label}: the reference pose {cal.reference!r} "
+                                       f"has capacitances {c_ref} pF; cannot divide by them")
         ok_train = np.isfinite(c_train).all(axis=1)
         ok_seq = np.isfinite(c_seq).all(axis=1)
         if (~ok_train).any() or (~ok_seq).any():
             log.warning("design %s: %d training and %d sequence poses failed to simulate; left out",
                         design.label, (~ok_train).sum(), (~ok_seq).sum())
-        model = fit(c_train[ok_train], train_y[ok_train], cal.kernel, cal.smoothing)
-        errors = score(model, c_seq[ok_seq], seq_y[ok_seq], dim, noise)
+        features = c_train[ok_train] if c_ref is None else c_train[ok_train] / c_ref
+        model = fit(features, train_y[ok_train], cal.kernel, cal.smoothing)
+        errors = score(model, c_seq[ok_seq], seq_y[ok_seq], dim, noise, reference_pF=c_ref)
         full_mean = np.full((noise.runs, len(c_seq)), np.nan)
         full_max = full_mean.copy()
         full_mean[:, ok_seq], full_max[:, ok_seq] = errors.mean, errors.max
-        reference = point_errors(train_y[ok_train].mean(axis=0)[None], seq_y, dim).mean(axis=1)
-        scores.append(DesignScore(design, PoseErrors(full_mean, full_max), reference, int(ok_train.sum()),
+        no_signal = point_errors(train_y[ok_train].mean(axis=0)[None], seq_y, dim).mean(axis=1)
+        scores.append(DesignScore(design, PoseErrors(full_mean, full_max), no_signal, int(ok_train.sum()),
                                   int((~ok_train).sum()), len(model.groups), int((~ok_seq).sum()),
-                                  float(data["training_wall_s"].sum() + data["sequence_wall_s"].sum())))
+                                  float(sum(data[f"{w}_wall_s"].sum() for w in families(scene)))))
     return scores

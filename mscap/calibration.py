@@ -10,13 +10,17 @@ measures) or the pose parameters themselves.
 
 Noise (appendix A): per run, every capacitor's reading is scaled by a factor drawn
 uniformly in 1 ± ``relative_shift`` (0.15); per pose and capacitor, an offset drawn
-uniformly in ± ``additive_pF`` (2 pF) is added; ``runs`` (100) seeded runs.
+uniformly in ± ``additive_pF`` (2 pF) is added; ``runs`` (100) seeded runs. With a
+``reference`` pose, each run also reads that pose once (same shift, its own offset) and
+every read-out is divided by it, capacitor by capacitor, as a sensor is tared at the
+start of a session: the per-run shift then cancels but for the offsets.
 
 Scene keys::
 
     [calibration]
     pose = "flex_30"                  # the template: a pose of the scene
     target = "vertices"               # or "parameters" (default: vertices for glue poses)
+    reference = "rest"                # optional: read-outs divided by this pose's, read once per run
     kernel = "thin_plate_spline"      # scipy.interpolate.RBFInterpolator kernel
     smoothing = 0.0
     [calibration.training]            # parameter = [start, stop, count]; grid of all
@@ -78,7 +82,8 @@ class NoiseModel:
 class CalibrationSettings:
     """A scene's ``[calibration]``: the template pose, the varied parameters and their
     training grid ``(n_train, n_par)`` and evaluation sequence ``(n_seq, n_par)``,
-    whether a sequence pose lies inside the training ranges, the RBF settings and the
+    whether a sequence pose lies inside the training ranges, the reference pose (read
+    once per run; the read-outs are divided by it) or ``None``, the RBF settings and the
     noise model."""
 
     pose: str
@@ -87,6 +92,7 @@ class CalibrationSettings:
     sequence: np.ndarray
     in_range: np.ndarray
     target: str = "vertices"
+    reference: str | None = None
     kernel: str = "thin_plate_spline"
     smoothing: float = 0.0
     noise: NoiseModel = NoiseModel()
@@ -148,6 +154,9 @@ def read_calibration(t: Table | None, poses: tuple) -> CalibrationSettings | Non
     if target == "vertices" and template.kind != "glue":
         raise t.error("target", f"'vertices' needs a glue pose (an object to reconstruct); "
                       f"pose {name!r} is a {template.kind} pose: use 'parameters'")
+    reference = t.get("reference", str, None)
+    if reference is not None and reference not in by_name:
+        raise t.error("reference", f"no pose named {reference!r}; poses: {', '.join(by_name)}")
     kernel = t.get("kernel", str, "thin_plate_spline")
     if kernel not in KERNELS:
         raise t.error("kernel", f"unknown RBF kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
@@ -203,7 +212,8 @@ def read_calibration(t: Table | None, poses: tuple) -> CalibrationSettings | Non
     t.finish()
     _check_family(t, template, names, training, sequence)
     return CalibrationSettings(pose=name, parameters=names, training=training, sequence=sequence,
-                               in_range=in_range, target=target, kernel=kernel, smoothing=smoothing,
+                               in_range=in_range, target=target, reference=reference, kernel=kernel,
+                               smoothing=smoothing,
                                noise=noise)
 
 

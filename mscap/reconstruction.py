@@ -99,14 +99,24 @@ class PoseErrors:
 
 
 def score(reconstructor: Reconstructor, sequence_pF: np.ndarray, truth: np.ndarray, dim: int,
-          noise: NoiseModel, rng: np.random.Generator | None = None) -> PoseErrors:
+          noise: NoiseModel, rng: np.random.Generator | None = None,
+          reference_pF: np.ndarray | None = None) -> PoseErrors:
     """Reconstruct the ``(n_seq, k)`` sequence read-outs under ``noise.runs`` noisy runs
     and compare with the ``(n_seq, n_out)`` true targets.
+
+    With ``reference_pF`` (``(k,)``, the reference pose's clean capacitances; the
+    reconstructor must then have been fitted on read-outs divided by it) each run also
+    reads the reference once, with the run's shift and its own offset, and the map gets
+    the sequence read-outs divided by that reading.
 
     ``rng`` defaults to one seeded with ``noise.seed``: every design scored with the same
     k then sees the same noise draws.
     """
-    noisy = noise.apply(sequence_pF, rng)                     # (runs, n_seq, k)
+    if reference_pF is None:
+        noisy = noise.apply(sequence_pF, rng)                 # (runs, n_seq, k)
+    else:
+        both = noise.apply(np.vstack([sequence_pF, np.reshape(reference_pF, (1, -1))]), rng)
+        noisy = both[:, :-1] / both[:, -1:]
     truth = np.asarray(truth, dtype=float).reshape(len(sequence_pF), -1)
     means, maxes = [], []
     for run in noisy:                                         # one (n_seq, n_out) block at a time

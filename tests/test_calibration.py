@@ -4,6 +4,7 @@ section, the cached family simulation and ``mscap calibrate``."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import os
 import subprocess
@@ -171,7 +172,28 @@ def test_noise_free_reconstruction_is_exact_on_training_poses(write_scene, tmp_p
     simulate_family(scene, ds, tmp_path / "cache.h5", _OneRank())
     (s,) = evaluate(scene, ds, tmp_path / "cache.h5", NoiseModel(0.0, 0.0, runs=2))
     assert s.errors.max.max() < 1e-6                       # mm
-    assert s.reference.max() > 0.1                          # the poses do differ (mm)
+    assert s.no_signal.max() > 0.1                          # the poses do differ (mm)
+
+
+def test_a_reference_pose_cancels_the_per_run_shift(write_scene, tmp_path):
+    """Read-outs divided by the rest pose's, read in the same run: a purely multiplicative
+    per-run shift cancels exactly, so the training poses come back to round-off, while
+    the raw read-outs are off by millimetres."""
+    scene = load_scene(write_scene(calibration_scene(reference="rest",
+                                                     sequence={"steps": 5, "radius_mm": [30.0, 80.0]})))
+    assert scene.calibration.reference == "rest"
+    ds = designs(scene)[:1]
+    lines = []
+    simulate_family(scene, ds, tmp_path / "c.h5", _OneRank(), progress=lines.append)
+    assert "+ reference pose rest); 13 poses to simulate" in lines[0]      # 6 + 6 + 1
+    shift_only = NoiseModel(relative_shift=0.15, additive_pF=0.0, runs=20)
+    (tared,) = evaluate(scene, ds, tmp_path / "c.h5", shift_only)
+    assert tared.errors.max.max() < 1e-6
+    raw_scene = dataclasses.replace(scene, calibration=dataclasses.replace(scene.calibration, reference=None))
+    (raw,) = evaluate(raw_scene, ds, tmp_path / "c.h5", shift_only)
+    assert raw.errors.mean.mean() > 0.1                           # mm
+    with pytest.raises(SceneError, match="calibration.reference: no pose named 'flat'"):
+        load_scene(write_scene(calibration_scene(reference="flat"), "bad.toml"))
 
 
 def test_cache_is_reused_extended_and_survives_a_noise_change(write_scene, tmp_path):

@@ -34,6 +34,9 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int, help="noise seed (default: the scene's)")
     p.add_argument("--relative-shift", type=float, help="per-run multiplicative shift, ± fraction (0.15)")
     p.add_argument("--additive-pF", type=float, help="per-pose additive noise, ± pF (2)")
+    p.add_argument("--reference", metavar="POSE",
+                   help="divide every read-out by this pose's, read once per run ('none': raw "
+                        "read-outs; default: the scene's calibration.reference)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(run=run)
 
@@ -76,6 +79,15 @@ def run(args) -> int:
     rank = comm.Get_rank()
     scene = load_scene_for(args)
     cal = settings(scene)
+    if args.reference is not None:
+        reference = None if args.reference == "none" else args.reference
+        if reference is not None and reference not in {p.name for p in scene.poses}:
+            from ..calibrate import CalibrationError
+
+            raise CalibrationError(f"--reference {reference!r}: no such pose in {scene.path} "
+                                   f"({', '.join(p.name for p in scene.poses)})")
+        cal = replace(cal, reference=reference)
+        scene = replace(scene, calibration=cal)
     results_path = Path(split_design_spec(args.design)[0])
     stem = results_path.with_suffix("")
     cache = Path(args.cache or f"{stem}_calibration.h5")
@@ -99,7 +111,7 @@ def run(args) -> int:
         print(f"{s.design.label:<34} {s.design.k:>2} {np.nanmean(m['mean_error']):>8.3f} ± "
               f"{np.nanmean(m['mean_error_std']):<6.3f} {np.nanmean(m['max_error']):>8.3f} ± "
               f"{np.nanmean(m['max_error_std']):<6.3f}")
-    print(f"{'no signal (mean training pose)':<34} {'':>2} {np.mean(scores[0].reference):>8.3f}")
+    print(f"{'no signal (mean training pose)':<34} {'':>2} {np.mean(scores[0].no_signal):>8.3f}")
     print(f"wrote {outdir}/errors.csv, summary.json, errors.png")
     return 0
 
@@ -118,8 +130,9 @@ def write_outputs(outdir: Path, scene, scores, noise) -> None:
             for i, row in enumerate(cal.sequence):
                 w.writerow([s.design.label, s.design.k, i, *[f"{x:.6g}" for x in row], int(cal.in_range[i]),
                             *[f"{m[c][i]:.6g}" for c in ("mean_error", "mean_error_std", "max_error",
-                                                           "max_error_std")], f"{s.reference[i]:.6g}"])
-    summary = {"scene": scene.name, "target": cal.target, "kernel": cal.kernel, "smoothing": cal.smoothing,
+                                                           "max_error_std")], f"{s.no_signal[i]:.6g}"])
+    summary = {"scene": scene.name, "target": cal.target, "reference_pose": cal.reference,
+               "kernel": cal.kernel, "smoothing": cal.smoothing,
                "noise": {"relative_shift": noise.relative_shift, "additive_pF": noise.additive_pF,
                          "runs": noise.runs, "seed": noise.seed},
                "training_poses": len(cal.training), "sequence_poses": len(cal.sequence),
@@ -132,7 +145,7 @@ def write_outputs(outdir: Path, scene, scores, noise) -> None:
             "sequence_failed": s.sequence_failed, "simulation_s": s.simulation_s,
             "mean_error": float(np.nanmean(m["mean_error"])), "mean_error_std": float(np.nanmean(m["mean_error_std"])),
             "max_error": float(np.nanmean(m["max_error"])), "max_error_std": float(np.nanmean(m["max_error_std"])),
-            "no_signal_mean_error": float(np.nanmean(s.reference)),
+            "no_signal_mean_error": float(np.nanmean(s.no_signal)),
             "mean_error_in_range": float(np.nanmean(m["mean_error"][cal.in_range])),
             "mean_error_out_of_range": (float(np.nanmean(m["mean_error"][~cal.in_range]))
                                         if (~cal.in_range).any() else None)})
@@ -159,14 +172,14 @@ def figure(path: Path, scene, scores) -> None:
         for s in scores:
             m = s.errors.summary()
             line, = ax.plot(x, m[key], lw=1.5, label=f"{s.design.label} (k={s.design.k})")
-            ax.fill_between(x, m[key] - m[key + "_std"], m[key] + m[key + "_std"], color=line.get_color(),
-                            alpha=0.2, lw=0)
+            low = np.maximum(m[key] - m[key + "_std"], 0.1 * m[key])  # log axis: keep the band > 0
+            ax.fill_between(x, low, m[key] + m[key + "_std"], color=line.get_color(), alpha=0.2, lw=0)
         if key == "mean_error" and scores:
-            ax.plot(x, scores[0].reference, "k:", lw=1, label="no signal (mean training pose)")
+            ax.plot(x, scores[0].no_signal, "k:", lw=1, label="no signal (mean training pose)")
         ax.set_title(title if cal.target == "vertices" else title.replace("vertex", "parameter"))
         ax.set_xlabel("sequence pose (grey: outside the training ranges)")
-        ax.set_ylabel(unit)
-        ax.set_ylim(bottom=0)
+        ax.set_ylabel(f"{unit}, log scale")
+        ax.set_yscale("log")
     axes[0].legend(fontsize=7)
     fig.suptitle(f"{scene.name}: reconstruction error, mean ± std over {scores[0].errors.mean.shape[0]} "
                  "noisy runs" if scores else scene.name)
