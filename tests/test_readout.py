@@ -12,11 +12,12 @@ import math
 import numpy as np
 import pytest
 
-from mscap import readout
+from mscap import patterns
 from mscap.cli import main
+from mscap.patterns import default_patterns, optimise_patterns
 from mscap.readout import (C_OFF_PF, C_ON_PF, CapacitorArray, ReadingNoise, ReadoutError, all_patterns,
-                           check_rank, default_patterns, error_bound, grid_array, ideal_readings,
-                           measurement_matrix, noise_gain, optimise_patterns, recover, simulate_readout)
+                           check_rank, error_bound, grid_array, ideal_readings, measurement_matrix, noise_gain,
+                           recover, simulate_readout)
 from mscap.scene import load_scene
 from mscap.store import open_store, write_run
 from tests.conftest import synthetic_record
@@ -171,7 +172,7 @@ def test_secular_condition_numbers_match_eigvalsh():
     rows = rng.integers(0, 2, (40, 7)).astype(float)
     gram = rows[:10].T @ rows[:10]
     direct = [np.linalg.cond(np.vstack([rows[:10], x])) for x in rows]
-    np.testing.assert_allclose(readout._cond_with_row(gram, rows), direct, rtol=1e-7)
+    np.testing.assert_allclose(patterns._cond_with_row(gram, rows), direct, rtol=1e-7)
 
 
 @pytest.mark.parametrize("k, rows, columns", [(4, 2, 2), (9, 3, 3), (6, 2, 3)])
@@ -210,7 +211,7 @@ def test_optimised_2x2_reaches_the_exhaustive_optimum():
 def test_default_patterns(monkeypatch):
     array = grid_array(4)
     assert np.array_equal(default_patterns(array), all_patterns(array))
-    monkeypatch.setattr(readout, "MAX_DEFAULT_ALL_LEADS", 3)
+    monkeypatch.setattr(patterns, "MAX_DEFAULT_ALL_LEADS", 3)
     optimised = default_patterns(array)
     assert optimised.shape == (12, 4) and check_rank(measurement_matrix(array, optimised)) < 10
     with pytest.raises(ReadoutError, match="5 readings cannot determine 6 unknowns"):

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..patterns import optimise_patterns
 from ..readout import (C_OFF_PF, C_ON_PF, MAX_DEFAULT_ALL_LEADS, ReadingNoise, ReadoutError, all_patterns,
-                       check_rank, error_bound, grid_array, measurement_matrix, noise_gain, optimise_patterns,
-                       simulate_readout)
+                       check_rank, error_bound, grid_array, measurement_matrix, noise_gain, simulate_readout)
 
 __all__ = ["add_parser", "run", "choose_patterns", "readout_report", "text_report", "write_outputs",
            "CSV_COLUMNS"]
@@ -61,7 +61,7 @@ def choose_patterns(array, spec: str, seed: int = 0) -> tuple[np.ndarray, str, f
     """The patterns named by ``--patterns``, a description and the optimiser's start
     condition number (``None`` when nothing was optimised)."""
     spec = str(spec).strip().lower()
-    if spec == "default":           # the rule of readout.default_patterns
+    if spec == "default":           # the rule of patterns.default_patterns
         spec = "all" if array.n_leads <= MAX_DEFAULT_ALL_LEADS else "optimised"
     if spec == "all":
         return all_patterns(array), "all", None
