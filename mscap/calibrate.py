@@ -132,14 +132,14 @@ class _Task:
     stop: int
 
 
-def _simulate_chunk(scene, design: Design, poses: tuple) -> tuple[np.ndarray, np.ndarray]:
+def _simulate_chunk(scene, design: Design, poses: tuple, mesh=None) -> tuple[np.ndarray, np.ndarray]:
     """Capacitances ``(n, k)`` and wall times of ``poses`` on one mesh of ``design``.
     A chunk that fails is redone pose by pose so only the failing poses are lost (NaN)."""
     from .layered import mesh_scene
     from .simulate import simulate
 
     s = replace(scene, layout=Layout(design.outlines), poses=poses)
-    mesh = mesh_scene(s)
+    mesh = mesh or mesh_scene(s)
     try:
         sim = simulate(s, mesh=mesh)
         return sim.capacitance_pF, np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])
@@ -147,7 +147,7 @@ def _simulate_chunk(scene, design: Design, poses: tuple) -> tuple[np.ndarray, np
         if len(poses) == 1:
             log.warning("design %s, pose %s failed: %s", design.label, poses[0].name, exc)
             return np.full((1, design.k), np.nan), np.zeros(1)
-    parts = [_simulate_chunk(scene, design, (p,)) for p in poses]
+    parts = [_simulate_chunk(scene, design, (p,), mesh) for p in poses]
     return np.vstack([c for c, _ in parts]), np.concatenate([w for _, w in parts])
 
 
