@@ -324,3 +324,22 @@ def test_cli_errors(write_scene, tmp_path):
     other["name"] = "other"
     result = mscap("calibrate", write_scene(other, "o.toml"), "--design", tmp_path / "r.h5")
     assert result.returncode == 2 and "holds results of scene 'small'" in result.stderr
+
+
+def test_cli_takes_an_optimize_directory(write_scene, tmp_path):
+    """`mscap optimize` output (outlines.json, summary.json) as the design; `initial` is
+    rebuilt from its (k, seed, init), here the scene's own layout."""
+    path = write_scene(calibration_scene())
+    scene = load_scene(path)
+    run = tmp_path / "opt"
+    run.mkdir()
+    moved = [np.array(o) + [0.5, 0.0] for o in scene.layout.outlines]
+    (run / "outlines.json").write_text(json.dumps({"outlines_mm": [o.tolist() for o in moved]}))
+    (run / "summary.json").write_text(json.dumps({"k": 2, "seed": 0, "init": "scene"}))
+    result = mscap("calibrate", path, "--design", run, "--runs", "5")
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((run / "calibration" / "summary.json").read_text())
+    assert [d["label"] for d in summary["designs"]] == ["opt (optimised)", "scene layout"]
+    assert (run / "calibration.h5").exists()
+    bad = mscap("calibrate", path, "--design", run, "--baseline", "k2_s0000_lloyd")
+    assert bad.returncode == 2 and "only the baselines 'initial' and 'scene'" in bad.stderr

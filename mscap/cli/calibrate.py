@@ -23,13 +23,16 @@ def add_parser(sub) -> None:
                                    "pose: the scene's [calibration.noise]). Under mpirun the ranks "
                                    "share the simulations.")
     p.add_argument("scene", help="scene file with a [calibration] section")
-    p.add_argument("--design", required=True, metavar="FILE.h5[:RUN]",
-                   help="results file of `mscap run` (default run: the chosen one)")
+    p.add_argument("--design", required=True, metavar="FILE.h5[:RUN]|DIR",
+                   help="results file of `mscap run` (default run: the chosen one), or an output "
+                        "directory of `mscap optimize`")
     p.add_argument("--baseline", nargs="*", default=None, metavar="B",
                    help="baselines: 'initial' (the design's initial layout), 'scene' (the scene's "
                         "own layout), a run id of the results file, or RUN:initial (default: initial)")
-    p.add_argument("-o", "--output", help="output directory (default: <results>_calibration/)")
-    p.add_argument("--cache", help="simulation cache (default: <results>_calibration.h5)")
+    p.add_argument("-o", "--output", help="output directory (default: <results>_calibration/, or "
+                                          "DIR/calibration/ for an optimize directory)")
+    p.add_argument("--cache", help="simulation cache (default: <results>_calibration.h5, or "
+                                   "DIR/calibration.h5)")
     p.add_argument("--runs", type=int, help="noisy runs (default: the scene's, 100)")
     p.add_argument("--seed", type=int, help="noise seed (default: the scene's)")
     p.add_argument("--relative-shift", type=float, help="per-run multiplicative shift, ± fraction (0.15)")
@@ -41,11 +44,44 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
+def _designs_from_optimize(scene, directory: Path, baselines: list[str] | None) -> list:
+    """The final layout of an ``mscap optimize`` output directory and its baselines:
+    ``initial`` (rebuilt from the run's k, seed and init: initial layouts are functions
+    of those alone) and ``scene``."""
+    from ..calibrate import CalibrationError, Design
+    from ..initial import initial_layout
+    from ..layout import Layout
+
+    try:
+        outlines = json.loads((directory / "outlines.json").read_text())["outlines_mm"]
+        summary = json.loads((directory / "summary.json").read_text())
+    except (OSError, KeyError, ValueError) as exc:
+        raise CalibrationError(f"{directory}: not an `mscap optimize` output directory "
+                               f"(outlines.json, summary.json): {exc}") from None
+    designs = [Design(f"{directory.name} (optimised)", tuple(np.array(o, dtype=float) for o in outlines))]
+    for b in ["initial"] if baselines is None else baselines:
+        if b == "scene":
+            designs.append(Design("scene layout", scene.layout.outlines))
+        elif b == "initial":
+            init = summary["init"]
+            layout = scene.layout if init == "scene" else initial_layout(scene, int(summary["k"]),
+                                                                          int(summary["seed"]), init)
+            label = "scene layout" if init == "scene" else f"{directory.name}:initial"
+            designs.append(Design(label, Layout(layout.outlines).outlines))
+        else:
+            raise CalibrationError(f"--baseline {b!r}: an `mscap optimize` directory has only the "
+                                   "baselines 'initial' and 'scene'; run ids need a results file")
+    return designs
+
+
 def designs_from(scene, spec: str, baselines: list[str] | None) -> list:
-    """The design named by ``spec`` and its baselines, as :class:`~mscap.calibrate.Design`."""
+    """The design named by ``spec`` (a results file, optionally ``:RUN``, or an ``mscap
+    optimize`` output directory) and its baselines, as :class:`~mscap.calibrate.Design`."""
     from ..calibrate import Design
     from ..store import read_design, read_store, split_design_spec
 
+    if Path(spec).is_dir():
+        return _designs_from_optimize(scene, Path(spec), baselines)
     path, rid = split_design_spec(spec)
     with read_store(path) as store:
         stored_name = store.attrs["scene_name"]
@@ -89,9 +125,13 @@ def run(args) -> int:
         cal = replace(cal, reference=reference)
         scene = replace(scene, calibration=cal)
     results_path = Path(split_design_spec(args.design)[0])
-    stem = results_path.with_suffix("")
-    cache = Path(args.cache or f"{stem}_calibration.h5")
-    outdir = Path(args.output or f"{stem}_calibration")
+    if results_path.is_dir():       # an `mscap optimize` directory: write inside it
+        default_cache, default_out = results_path / "calibration.h5", results_path / "calibration"
+    else:
+        stem = results_path.with_suffix("")
+        default_cache, default_out = Path(f"{stem}_calibration.h5"), Path(f"{stem}_calibration")
+    cache = Path(args.cache or default_cache)
+    outdir = Path(args.output or default_out)
     designs = designs_from(scene, args.design, args.baseline)
     say = progress_printer(args.quiet or rank > 0)
     simulate_family(scene, designs, cache, comm, progress=say)
