@@ -64,6 +64,21 @@ class NoiseModel:
     runs: int = 100
     seed: int = 0
 
+    def __post_init__(self):
+        from .errors import MscapError
+
+        if not 0 <= self.relative_shift < 1:
+            raise MscapError(f"noise: relative shift must be in [0, 1), got {self.relative_shift}")
+        if not self.additive_pF >= 0:
+            raise MscapError(f"noise: additive noise must be >= 0 pF, got {self.additive_pF}")
+        if self.runs < 1:
+            raise MscapError(f"noise: runs must be >= 1, got {self.runs}")
+
+    @property
+    def additive_std_pF(self) -> float:
+        """Standard deviation of the uniform ± ``additive_pF`` offset."""
+        return self.additive_pF / 3**0.5
+
     def draw(self, rng: np.random.Generator, n_poses: int, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Per-run factors ``(runs, 1, k)`` and per-pose offsets ``(runs, n_poses, k)`` (pF)."""
         factor = rng.uniform(1.0 - self.relative_shift, 1.0 + self.relative_shift, (self.runs, 1, k))
@@ -202,12 +217,13 @@ def read_calibration(t: Table | None, poses: tuple) -> CalibrationSettings | Non
     noise_t = t.table("noise", required=False)
     noise = NoiseModel()
     if noise_t is not None:
-        noise = NoiseModel(relative_shift=noise_t.get("relative_shift", float, 0.15, minimum=0.0),
+        relative_shift = noise_t.get("relative_shift", float, 0.15, minimum=0.0)
+        if relative_shift >= 1.0:
+            raise noise_t.error("relative_shift", f"must be < 1, got {relative_shift!r}")
+        noise = NoiseModel(relative_shift=relative_shift,
                            additive_pF=noise_t.get("additive_pF", float, 2.0, minimum=0.0),
                            runs=noise_t.get("runs", int, 100, minimum=1),
                            seed=noise_t.get("seed", int, 0, minimum=0))
-        if noise.relative_shift >= 1.0:
-            raise noise_t.error("relative_shift", f"must be < 1, got {noise.relative_shift!r}")
         noise_t.finish()
     t.finish()
     _check_family(t, template, names, training, sequence)

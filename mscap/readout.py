@@ -25,12 +25,13 @@ from functools import cached_property
 
 import numpy as np
 
+from .calibration import NoiseModel
 from .errors import MscapError
 
 __all__ = ["ReadoutError", "C_ON_PF", "C_OFF_PF", "MAX_ALL_LEADS", "MAX_DEFAULT_ALL_LEADS",
            "MAX_ENUMERATED_CANDIDATE_LEADS", "MAX_RANDOM_CANDIDATES", "CapacitorArray", "grid_array",
            "all_patterns", "random_patterns", "MeasurementMatrix", "measurement_matrix", "check_rank", "Recovered",
-           "ideal_readings", "recover", "noise_gain", "error_bound", "ReadingNoise", "ReadoutErrors",
+           "ideal_readings", "recover", "noise_gain", "error_bound", "ReadoutErrors",
            "simulate_readout"]
 
 log = logging.getLogger(__name__)
@@ -325,29 +326,6 @@ def error_bound(m: MeasurementMatrix, additive_pF: float) -> float:
 
 
 # ---------------------------------------------------------------- noisy read-outs
-@dataclass(frozen=True)
-class ReadingNoise:
-    """The project's noise model.
-
-    Per run, each capacitor's true capacitance is scaled by ``1 + U(-relative, relative)``
-    (a fabrication/drift shift the readout cannot and should not remove); per reading,
-    ``U(-additive_pF, additive_pF)`` is added (std ``additive_pF / sqrt(3)``).
-    """
-
-    relative: float = 0.15
-    additive_pF: float = 2.0
-
-    def __post_init__(self):
-        if not 0 <= self.relative < 1:
-            raise ReadoutError(f"noise: relative shift must be in [0, 1), got {self.relative}")
-        if not self.additive_pF >= 0:
-            raise ReadoutError(f"noise: additive reading noise must be >= 0 pF, got {self.additive_pF}")
-
-    @property
-    def additive_std_pF(self) -> float:
-        return self.additive_pF / math.sqrt(3)
-
-
 @dataclass(frozen=True, eq=False)
 class ReadoutErrors:
     """Recovered minus (shifted) true values of ``runs`` simulated read-outs.
@@ -373,8 +351,12 @@ class ReadoutErrors:
 
 
 def simulate_readout(m: MeasurementMatrix, capacitance_pF, c_on_pF: float = C_ON_PF, c_off_pF: float = C_OFF_PF,
-                     noise: ReadingNoise = ReadingNoise(), runs: int = 100, seed: int = 0) -> ReadoutErrors:
-    """Read ``capacitance_pF`` (k,) or (poses, k) ``runs`` times with ``noise`` and recover it.
+                     noise: NoiseModel = NoiseModel()) -> ReadoutErrors:
+    """Read ``capacitance_pF`` (k,) or (poses, k) ``noise.runs`` times and recover it.
+
+    ``noise`` is the project's noise model (:class:`mscap.calibration.NoiseModel`):
+    the relative shift acts on each capacitor once per run (a fabrication/drift shift the
+    read-out cannot and should not remove), the additive draw on every reading.
 
     A run shifts each capacitor once (the same shift in every pose: one fabricated
     sensor), then reads every pose with fresh additive noise on each reading. The
@@ -384,11 +366,10 @@ def simulate_readout(m: MeasurementMatrix, capacitance_pF, c_on_pF: float = C_ON
     capacitance = np.asarray(capacitance_pF, dtype=float)
     if capacitance.ndim not in (1, 2) or not np.isfinite(capacitance).all():
         raise ReadoutError(f"capacitances: expected finite (k,) or (poses, k), got shape {capacitance.shape}")
-    if runs < 1:
-        raise ReadoutError(f"runs must be >= 1, got {runs}")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(noise.seed)
     k = m.array.k
-    shift = rng.uniform(-noise.relative, noise.relative, (runs,) + (1,) * (capacitance.ndim - 1) + (k,))
+    shape = (noise.runs,) + (1,) * (capacitance.ndim - 1) + (k,)
+    shift = rng.uniform(-noise.relative_shift, noise.relative_shift, shape)
     truth = capacitance * (1 + shift)
     readings = ideal_readings(m, truth, c_on_pF, c_off_pF)
     readings += rng.uniform(-noise.additive_pF, noise.additive_pF, readings.shape)

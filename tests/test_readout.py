@@ -15,7 +15,8 @@ import pytest
 from mscap import patterns
 from mscap.cli import main
 from mscap.patterns import default_patterns, optimise_patterns
-from mscap.readout import (C_OFF_PF, C_ON_PF, CapacitorArray, ReadingNoise, ReadoutError, all_patterns,
+from mscap.calibration import NoiseModel
+from mscap.readout import (C_OFF_PF, C_ON_PF, CapacitorArray, ReadoutError, all_patterns,
                            check_rank, error_bound, grid_array, ideal_readings, measurement_matrix, noise_gain,
                            recover, simulate_readout)
 from mscap.scene import load_scene
@@ -98,9 +99,9 @@ def test_noise_hard_bound_and_rms(k, rows, columns, which):
     array = grid_array(k, rows, columns)
     patterns = all_patterns(array) if which == "all" else optimise_patterns(array).patterns
     m = measurement_matrix(array, patterns)
-    noise = ReadingNoise(relative=0.15, additive_pF=2.0)
     runs = 4000
-    errors = simulate_readout(m, capacitances(k), noise=noise, runs=runs, seed=3)
+    noise = NoiseModel(relative_shift=0.15, additive_pF=2.0, runs=runs, seed=3)
+    errors = simulate_readout(m, capacitances(k), noise=noise)
     everything = np.column_stack([errors.capacitance_error_pF, errors.c_on_error_pF, errors.c_off_error_pF])
 
     # Hard: |M⁺ e|_j <= ‖M⁺‖_∞ max|e| for every run.
@@ -122,14 +123,14 @@ def test_error_is_against_the_shifted_truth():
     array = grid_array(4)
     m = measurement_matrix(array, all_patterns(array))
     poses = np.stack([capacitances(4, 1), capacitances(4, 2), capacitances(4, 3)])
-    shifted = simulate_readout(m, poses, noise=ReadingNoise(0.15, 2.0), runs=50, seed=9)
-    unshifted = simulate_readout(m, poses, noise=ReadingNoise(0.0, 2.0), runs=50, seed=9)
+    shifted = simulate_readout(m, poses, noise=NoiseModel(0.15, 2.0, runs=50, seed=9))
+    unshifted = simulate_readout(m, poses, noise=NoiseModel(0.0, 2.0, runs=50, seed=9))
     assert shifted.capacitance_error_pF.shape == (50, 3, 4) and shifted.rms_pF.shape == (50, 3)
     np.testing.assert_allclose(shifted.capacitance_error_pF, unshifted.capacitance_error_pF, atol=1e-9)
     ratio = shifted.true_capacitance_pF / poses
     assert 0.85 <= ratio.min() and ratio.max() <= 1.15 and ratio.std() > 0.05
     np.testing.assert_allclose(ratio[:, 0], ratio[:, 1])      # one shift per run, the same in every pose
-    exact = simulate_readout(m, poses, noise=ReadingNoise(0.15, 0.0), runs=5)
+    exact = simulate_readout(m, poses, noise=NoiseModel(0.15, 0.0, runs=5))
     assert np.abs(exact.capacitance_error_pF).max() < 1e-9
 
 

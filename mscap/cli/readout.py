@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ..patterns import optimise_patterns
-from ..readout import (C_OFF_PF, C_ON_PF, MAX_DEFAULT_ALL_LEADS, ReadingNoise, ReadoutError, all_patterns,
+from ..calibration import NoiseModel
+from ..readout import (C_OFF_PF, C_ON_PF, MAX_DEFAULT_ALL_LEADS, ReadoutError, all_patterns,
                        check_rank, error_bound, grid_array, measurement_matrix, noise_gain, simulate_readout)
 
 __all__ = ["add_parser", "run", "choose_patterns", "readout_report", "text_report", "write_outputs",
@@ -79,13 +80,13 @@ def _stats(values: np.ndarray) -> dict:
     return {"mean": float(values.mean()), "std": float(values.std())}
 
 
-def readout_report(design, array, patterns, description: str, noise: ReadingNoise, c_on_pF: float,
-                   c_off_pF: float, runs: int, seed: int, start_condition: float | None = None) -> dict:
+def readout_report(design, array, patterns, description: str, noise: NoiseModel, c_on_pF: float,
+                   c_off_pF: float, start_condition: float | None = None) -> dict:
     """Simulate the read-out of every pose of ``design`` (a ``StoredDesign``); the
     ``readout.json`` document."""
     m = measurement_matrix(array, patterns)
     condition = check_rank(m)
-    errors = simulate_readout(m, design.capacitance_pF, c_on_pF, c_off_pF, noise, runs, seed)
+    errors = simulate_readout(m, design.capacitance_pF, c_on_pF, c_off_pF, noise)
     gain = noise_gain(m)
     names = array.unknown_names
     k = array.k
@@ -113,7 +114,8 @@ def readout_report(design, array, patterns, description: str, noise: ReadingNois
                      "start_condition_number": start_condition, "bits": bits},
         "unknowns": list(names),
         "switches_pF": {"c_on": c_on_pF, "c_off": c_off_pF},
-        "noise": {"relative": noise.relative, "additive_pF": noise.additive_pF, "runs": runs, "seed": seed},
+        "noise": {"relative": noise.relative_shift, "additive_pF": noise.additive_pF, "runs": noise.runs,
+                  "seed": noise.seed},
         "predicted": {"noise_gain": dict(zip(names, gain.tolist())),
                       "error_std_pF": dict(zip(names, (gain * noise.additive_std_pF).tolist())),
                       "error_bound_pF": error_bound(m, noise.additive_pF)},
@@ -201,9 +203,8 @@ def run(args) -> int:
         design = read_design(store, rid, args.which)
     array = grid_array(design.capacitance_pF.shape[1], args.rows, args.columns)
     patterns, description, start = choose_patterns(array, args.patterns, args.seed)
-    noise = ReadingNoise(args.noise_relative, args.noise_additive_pF)
-    report = readout_report(design, array, patterns, description, noise, args.c_on, args.c_off, args.runs,
-                            args.seed, start)
+    noise = NoiseModel(args.noise_relative, args.noise_additive_pF, args.runs, args.seed)
+    report = readout_report(design, array, patterns, description, noise, args.c_on, args.c_off, start)
     report["scene"] = scene.name
     report["design"]["file"] = str(path)
     files = write_outputs(report, args.output) if args.output else []
