@@ -31,7 +31,7 @@ __all__ = ["StoreError", "RunRecord", "FORMAT", "SCHEMA_VERSION", "ROOT_ATTRS", 
            "RUN_DATASETS", "HISTORY_COLUMNS", "SELECTION_ITEMS", "TEMP_PREFIX", "open_store", "create_store", "read_store",
            "finished_ids", "write_run", "read_run", "run_summaries", "write_selection", "store_selection",
            "record_from_result", "failed_record", "scene_settings", "schema_markdown",
-           "StoredDesign", "split_design_spec", "read_design"]
+           "StoredDesign", "split_design_spec", "check_scene", "read_design"]
 
 log = logging.getLogger(__name__)
 
@@ -449,6 +449,25 @@ def split_design_spec(spec: str) -> tuple[str, str | None]:
     if not sep or not path.endswith((".h5", ".hdf5")):
         return str(spec), None
     return path, rid or None
+
+
+def check_scene(store: h5py.File, scene) -> None:
+    """A later stage (calibration, read-out) given ``scene`` for this file: the scene's
+    name must match the stored one; a changed scene text (e.g. a ``[calibration]`` added
+    after the runs) is only logged.
+
+    Raises
+    ------
+    StoreError
+        The file holds results of a scene of another name.
+    """
+    stored = str(store.attrs["scene_name"])
+    if stored != scene.name:
+        raise StoreError(f"{store.filename} holds results of scene {stored!r} ({store.attrs['scene_path']}), "
+                         f"not of {scene.path} (scene {scene.name!r})")
+    if store.attrs["scene_sha256"] != scene.sha256:
+        log.warning("%s: scene %s changed since the results were written (sha256 differs)",
+                    store.filename, scene.path)
 
 
 def read_design(store: h5py.File, rid: str | None = None, which: str = "final") -> StoredDesign:

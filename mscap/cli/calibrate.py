@@ -78,18 +78,13 @@ def designs_from(scene, spec: str, baselines: list[str] | None) -> list:
     """The design named by ``spec`` (a results file, optionally ``:RUN``, or an ``mscap
     optimize`` output directory) and its baselines, as :class:`~mscap.calibrate.Design`."""
     from ..calibrate import Design
-    from ..store import read_design, read_store, split_design_spec
+    from ..store import check_scene, read_design, read_store, split_design_spec
 
     if Path(spec).is_dir():
         return _designs_from_optimize(scene, Path(spec), baselines)
     path, rid = split_design_spec(spec)
     with read_store(path) as store:
-        stored_name = store.attrs["scene_name"]
-        if stored_name != scene.name:
-            from ..calibrate import CalibrationError
-
-            raise CalibrationError(f"{path} holds results of scene {stored_name!r}, not {scene.name!r} "
-                                   f"({scene.path})")
+        check_scene(store, scene)
         main = read_design(store, rid, "final")
         designs = [Design(f"{main.label} (optimised)", main.outlines)]
         for b in ["initial"] if baselines is None else baselines:

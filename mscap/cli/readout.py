@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import csv
 import json
-import logging
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,6 @@ from ..readout import (C_OFF_PF, C_ON_PF, MAX_DEFAULT_ALL_LEADS, ReadoutError, a
 __all__ = ["add_parser", "run", "choose_patterns", "readout_report", "text_report", "write_outputs",
            "CSV_COLUMNS"]
 
-log = logging.getLogger(__name__)
 
 #: Columns of ``readout.csv``: one row per pose and capacitor; errors over the runs (pF).
 CSV_COLUMNS = ("pose", "capacitor", "slot_row", "slot_column", "capacitance_pF", "error_mean_pF", "error_std_pF",
@@ -189,17 +187,12 @@ def write_outputs(report: dict, directory) -> list[Path]:
 
 def run(args) -> int:
     from ..scene import load_scene
-    from ..store import read_design, read_store, split_design_spec
+    from ..store import check_scene, read_design, read_store, split_design_spec
 
     path, rid = split_design_spec(args.design)
     scene = load_scene(args.scene)
     with read_store(path) as store:
-        stored = str(store.attrs["scene_name"])
-        if stored != scene.name:
-            raise ReadoutError(f"{path} holds results of scene {stored!r} ({store.attrs['scene_path']}), "
-                               f"not of {args.scene} (scene {scene.name!r})")
-        if store.attrs["scene_sha256"] != scene.sha256:
-            log.warning("%s: scene %s changed since the results were written (sha256 differs)", path, args.scene)
+        check_scene(store, scene)
         design = read_design(store, rid, args.which)
     array = grid_array(design.capacitance_pF.shape[1], args.rows, args.columns)
     patterns, description, start = choose_patterns(array, args.patterns, args.seed)
