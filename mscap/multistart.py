@@ -18,11 +18,13 @@ writes the selection and aborts the workers still busy.
 from __future__ import annotations
 
 import logging
+import math
 import time
 import traceback
 from dataclasses import replace
 from typing import Callable
 
+from .accuracy import estimate_error
 from .farm import TAGS, Stop, farm, release, serve
 from .selection import StartConfig, configurations, select
 from .store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
@@ -44,12 +46,22 @@ def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | N
         layout = initial_layout(scene, config.k, config.seed, config.init)
         design = build_design(replace(scene, layout=layout))
         result = optimize(design, max_iterations=max_iterations)
-        return record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
-                                  time.perf_counter() - start, rank)
+        record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
+                                    time.perf_counter() - start, rank)
     except Exception as exc:  # a failed start is a result, not a crash of the job
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
         return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
                              time.perf_counter() - start, rank)
+    if not scene.multistart.error_estimate:
+        return record
+    try:
+        check = estimate_error(scene, result.layout, record.final_capacitance_pF)
+    except Exception as exc:  # the run stands; only its accuracy is unknown
+        log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
+                    config.id, type(exc).__name__, exc)
+        return record
+    return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate=check.error,
+                   finer_metric_pF=check.metric_pF, error_estimate_wall_s=check.wall_s)
 
 
 def run_multistart(scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
@@ -117,6 +129,8 @@ def _master(scene, path, comm, force, retry_failed, select_configs, max_iteratio
             elapsed = time.perf_counter() - started
             eta = elapsed / done * (total - done)
             metric = f"{rec.metric:.4g} pF" if rec.ok else rec.error.splitlines()[0][:80]
+            if rec.ok and math.isfinite(rec.error_estimate):
+                metric += f" (finer mesh: C within {100 * rec.error_estimate:.2g} %)"
             say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
                 f"{total - done} left, ETA {eta:.0f} s")
 

@@ -145,7 +145,11 @@ class OptimizerSettings:
 
 @dataclass(frozen=True)
 class MultistartSettings:
-    """Multi-start settings (used from the multi-start issue on)."""
+    """Multi-start settings (scene table ``[multistart]``; docs/optimize.md): k from
+    ``k_min`` to ``k_max``, ``starts_per_k`` starts each, the first
+    ``ceil(lloyd_fraction · starts_per_k)`` of them Lloyd layouts; the plateau rule's
+    ``plateau_tol``; ``error_estimate``: re-simulate every run's final design on a mesh
+    one level finer (:mod:`mscap.accuracy`)."""
 
     k_min: int = 2
     k_max: int = 6
@@ -153,6 +157,7 @@ class MultistartSettings:
     lloyd_fraction: float = 0.2
     plateau_tol: float = 0.05
     seed: int = 0
+    error_estimate: bool = True
 
 
 @dataclass(frozen=True)

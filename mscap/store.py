@@ -36,7 +36,7 @@ __all__ = ["StoreError", "RunRecord", "FORMAT", "SCHEMA_VERSION", "ROOT_ATTRS", 
 log = logging.getLogger(__name__)
 
 FORMAT = "mscap-results"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: the finer-mesh error estimate of every run (mscap.accuracy)
 TEMP_PREFIX = ".tmp_"
 
 # ---------------------------------------------------------------- the schema, once
@@ -67,6 +67,10 @@ RUN_ATTRS = {
     "iterations": ("int", "accepted optimiser steps (0 if failed)"),
     "rank": ("int", "MPI rank of the worker that ran it (0 without MPI)"),
     "metric_pF": ("float", "final min over pose pairs of the L1 distance of capacitance vectors (NaN if failed)"),
+    "error_estimate": ("float", "max relative difference of the final capacitances from the same design's on a "
+                                "mesh one level finer (mscap.accuracy; NaN if not checked)"),
+    "finer_metric_pF": ("float", "metric_pF of the final design on that finer mesh (NaN if not checked)"),
+    "error_estimate_wall_s": ("float", "wall time of that check (s), not part of wall_s (NaN if not checked)"),
 }
 
 #: Datasets of a run group (ragged outlines: ``points[offsets[j]:offsets[j+1]]`` is outline j).
@@ -78,6 +82,7 @@ RUN_DATASETS = {
     "poses": ("str (n_poses,)", "pose names, the row order of the capacitance tables"),
     "initial_capacitance_pF": ("float64 (n_poses, k)", "capacitance per pose and capacitor, initial layout"),
     "final_capacitance_pF": ("float64 (n_poses, k)", "the same for the optimised layout (0 rows if failed)"),
+    "finer_capacitance_pF": ("float64 (n_poses, k)", "the optimised layout on the finer mesh (0 rows if not checked)"),
     "history/<column>": ("one 1-D dataset per column", "the optimiser history, one row per event (below)"),
 }
 
@@ -150,6 +155,10 @@ class RunRecord:
     initial_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     final_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     history: dict = field(default_factory=_empty_history)
+    finer_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    error_estimate: float = math.nan
+    finer_metric_pF: float = math.nan
+    error_estimate_wall_s: float = math.nan
 
     @property
     def id(self) -> str:
@@ -331,7 +340,9 @@ def write_run(store: h5py.File, record: RunRecord) -> str:
     g = runs.create_group(temp)
     values = {"k": int(record.k), "seed": int(record.seed), "init": record.init, "status": record.status,
               "error": record.error, "reason": record.reason, "wall_s": float(record.wall_s),
-              "iterations": int(record.iterations), "rank": int(record.rank), "metric_pF": record.metric}
+              "iterations": int(record.iterations), "rank": int(record.rank), "metric_pF": record.metric,
+              "error_estimate": float(record.error_estimate), "finer_metric_pF": float(record.finer_metric_pF),
+              "error_estimate_wall_s": float(record.error_estimate_wall_s)}
     assert set(values) == set(RUN_ATTRS)
     g.attrs.update(values)
     for stage, outlines in (("initial", record.initial_outlines), ("final", record.final_outlines)):
@@ -340,7 +351,7 @@ def write_run(store: h5py.File, record: RunRecord) -> str:
         g.create_dataset(f"{stage}_outline_offsets", data=offsets)
     g.create_dataset("poses", data=np.array(record.poses, dtype=object), dtype=_STR)
     k = int(record.k)
-    for name in ("initial_capacitance_pF", "final_capacitance_pF"):
+    for name in ("initial_capacitance_pF", "final_capacitance_pF", "finer_capacitance_pF"):
         g.create_dataset(name, data=np.asarray(getattr(record, name), dtype=float).reshape(-1, k))
     h = g.create_group("history")
     for name, kind in HISTORY_COLUMNS.items():
@@ -374,7 +385,13 @@ def read_run(store: h5py.File, rid: str) -> RunRecord:
                      initial_outlines=_unragged(g["initial_outline_points_mm"][()], g["initial_outline_offsets"][()]),
                      final_outlines=_unragged(g["final_outline_points_mm"][()], g["final_outline_offsets"][()]),
                      initial_capacitance_pF=g["initial_capacitance_pF"][()],
-                     final_capacitance_pF=g["final_capacitance_pF"][()], history=history)
+                     final_capacitance_pF=g["final_capacitance_pF"][()], history=history,
+                     # schema 1 files have no check: NaN
+                     finer_capacitance_pF=g["finer_capacitance_pF"][()] if "finer_capacitance_pF" in g
+                     else np.zeros((0, int(a["k"]))),
+                     error_estimate=float(a.get("error_estimate", math.nan)),
+                     finer_metric_pF=float(a.get("finer_metric_pF", math.nan)),
+                     error_estimate_wall_s=float(a.get("error_estimate_wall_s", math.nan)))
 
 
 def run_summaries(store: h5py.File) -> list[RunSummary]:

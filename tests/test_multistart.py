@@ -78,6 +78,31 @@ def test_three_ranks_write_a_complete_file(three_ranks, capsys):
     assert table["runs_total"] == 4 and table["chosen_k"] in (2, 3)
     assert [row["k"] for row in table["per_k"]] == [2, 3]
     assert all(row["runs_ok"] == 2 and row["runs_failed"] == 0 for row in table["per_k"])
+    assert all(0 < row["best_error_estimate"] < 0.3 for row in table["per_k"])
+    assert main(["inspect", str(out), "--runs"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[:3] == ["run", "status", "its"] and len(lines) == 5 and "%" in lines[1]
+
+
+@needs_mpirun
+def test_every_run_stores_its_finer_mesh_check(three_ranks, scene_file):
+    """The stored check is the final layout simulated on ``finer(scene)``."""
+    from dataclasses import replace
+
+    from mscap.accuracy import finer, relative_difference
+    from mscap.layout import Layout
+    from mscap.scene import load_scene
+    from mscap.simulate import simulate
+
+    out, _ = three_ranks
+    scene = load_scene(scene_file)
+    with read_store(out) as store:
+        record = read_run(store, "k2_s2000_lloyd")
+    layout = Layout(tuple(record.final_outlines))
+    fine = simulate(replace(finer(scene), layout=layout)).capacitance_pF
+    np.testing.assert_allclose(record.finer_capacitance_pF, fine, rtol=1e-9)
+    assert record.error_estimate == pytest.approx(relative_difference(record.final_capacitance_pF, fine), rel=1e-9)
+    assert record.error_estimate_wall_s > 0 and record.finer_metric_pF > 0
 
 
 @needs_mpirun

@@ -1,5 +1,6 @@
-"""``mscap inspect results.h5 [--json | --run ID]``: the per-k table of a multi-start
-results file, with the chosen k marked, or one run's history."""
+"""``mscap inspect results.h5 [--json | --runs | --run ID]``: the per-k table of a
+multi-start results file, with the chosen k marked, every run's cost and accuracy, or one
+run's history. Accuracy is the run's finer-mesh error estimate (:mod:`mscap.accuracy`)."""
 
 from __future__ import annotations
 
@@ -18,35 +19,68 @@ def add_parser(sub) -> None:
     p.add_argument("results", help="results file (.h5)")
     what = p.add_mutually_exclusive_group()
     what.add_argument("--json", action="store_true", help="print JSON for scripts")
+    what.add_argument("--runs", action="store_true",
+                      help="print every run: metric, its finer-mesh value and error estimate, wall times")
     what.add_argument("--run", dest="run_id", metavar="ID", help="print one run's attributes and history")
     p.set_defaults(run=run)
 
 
-def summary_json(selection) -> dict:
-    """The ``--json`` document of a ``Selection``."""
+def _check(checks: dict | None, rid) -> tuple[float, float]:
+    """(error_estimate, its wall time) of run ``rid`` (NaN if unknown)."""
+    return (checks or {}).get(rid, (math.nan, math.nan))
+
+
+def _finite_or_none(x: float):
+    return x if math.isfinite(x) else None
+
+
+def summary_json(selection, checks: dict | None = None) -> dict:
+    """The ``--json`` document of a ``Selection``; ``checks`` maps run ids to their
+    (error_estimate, error_estimate_wall_s)."""
     return {"per_k": [{"k": s.k, "runs_ok": s.runs_ok, "runs_failed": s.runs_failed,
-                       "best_metric": s.best_metric, "best_run": s.best_run, "wall_s": s.wall_s}
+                       "best_metric": s.best_metric, "best_run": s.best_run, "wall_s": s.wall_s,
+                       "best_error_estimate": _finite_or_none(_check(checks, s.best_run)[0])}
                       for s in selection.per_k],
             "chosen_k": selection.chosen_k, "chosen_run": selection.chosen_run,
             "plateau_tol": selection.plateau_tol, "plateau_reached": selection.plateau_reached,
             "runs_total": selection.runs_total}
 
 
-def table(selection, title: str = "") -> str:
-    """The per-k table; ``*`` marks the chosen k."""
+def _percent(x: float) -> str:
+    return f"{100 * x:.2f} %" if math.isfinite(x) else "-"
+
+
+def table(selection, title: str = "", checks: dict | None = None) -> str:
+    """The per-k table; ``*`` marks the chosen k. ``error`` is the best run's finer-mesh
+    error estimate, ``time`` the summed wall time of the k's runs."""
     lines = [title] if title else []
-    lines.append(f"{'':1} {'k':>3} {'ok':>4} {'failed':>6} {'best min L1 (pF)':>17} {'best run':<20} {'time (s)':>9}")
+    lines.append(f"{'':1} {'k':>3} {'ok':>4} {'failed':>6} {'best min L1 (pF)':>17} {'best run':<20} "
+                 f"{'error':>8} {'time (s)':>9}")
     for s in selection.per_k:
         mark = "*" if s.k == selection.chosen_k else " "
         metric = "-" if s.best_metric is None else f"{s.best_metric:.6g}"
         lines.append(f"{mark} {s.k:>3} {s.runs_ok:>4} {s.runs_failed:>6} {metric:>17} "
-                     f"{s.best_run or '-':<20} {s.wall_s:>9.1f}")
+                     f"{s.best_run or '-':<20} {_percent(_check(checks, s.best_run)[0]):>8} {s.wall_s:>9.1f}")
     if selection.chosen_k is None:
         lines.append("no successful run: no k chosen")
     else:
         note = "" if selection.plateau_reached else " (largest k with a successful run: plateau not confirmed)"
         lines.append(f"* chosen k = {selection.chosen_k}, run {selection.chosen_run}, plateau_tol "
                      f"{selection.plateau_tol:g}{note}; {selection.runs_total} runs")
+    return "\n".join(lines)
+
+
+def runs_table(records) -> str:
+    """One line per run: status, iterations, the metric and its value on the finer mesh,
+    the error estimate, the run's wall time and the check's."""
+    lines = [f"{'run':<20} {'status':<6} {'its':>4} {'min L1 (pF)':>12} {'finer (pF)':>11} {'error':>8} "
+             f"{'time (s)':>9} {'check (s)':>9}"]
+    for r in records:
+        def number(x, fmt):
+            return format(x, fmt) if math.isfinite(x) else "-"
+        lines.append(f"{r.id:<20} {r.status:<6} {r.iterations:>4} {number(r.metric, '.6g'):>12} "
+                     f"{number(r.finer_metric_pF, '.6g'):>11} {_percent(r.error_estimate):>8} {r.wall_s:>9.1f} "
+                     f"{number(r.error_estimate_wall_s, '.1f'):>9}")
     return "\n".join(lines)
 
 
@@ -60,6 +94,9 @@ def _history(record) -> str:
         lines.append(f"error: {record.error}")
     if math.isfinite(record.metric):
         lines.append(f"min pairwise L1: {record.metric:.6g} pF")
+    if math.isfinite(record.error_estimate):
+        lines.append(f"on a mesh one level finer: min pairwise L1 {record.finer_metric_pF:.6g} pF, capacitances "
+                     f"within {_percent(record.error_estimate)} (check took {record.error_estimate_wall_s:.1f} s)")
     names = list(HISTORY_COLUMNS)
     lines.append("\t".join(names))
     columns = [record.history[n] for n in names]
@@ -70,16 +107,23 @@ def _history(record) -> str:
 
 
 def run(args) -> int:
-    from ..store import read_run, read_store, store_selection
+    from ..store import finished_ids, read_run, read_store, store_selection
 
     with read_store(args.results) as store:
         if args.run_id:
             print(_history(read_run(store, args.run_id)))
             return 0
+        if args.runs:
+            print(runs_table(read_run(store, rid) for rid in sorted(finished_ids(store))))
+            return 0
         selection = store_selection(store)
+        checks = {}
+        for rid in finished_ids(store):
+            a = store["runs"][rid].attrs
+            checks[rid] = (float(a.get("error_estimate", math.nan)), float(a.get("error_estimate_wall_s", math.nan)))
         if args.json:
-            print(json.dumps(summary_json(selection), indent=1))
+            print(json.dumps(summary_json(selection, checks), indent=1))
         else:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
-                                   f"(sha256 {store.attrs['scene_sha256'][:12]}…)"))
+                                   f"(sha256 {store.attrs['scene_sha256'][:12]}…)", checks))
     return 0
