@@ -51,6 +51,7 @@ from .layered import LayeredMesh
 from .loading import loading_for
 from .newton import ElasticState, Loading, NewtonSettings, solve_pose
 from .poses import PokePose, StretchPose
+from .profile import timed
 
 __all__ = ["AdjointError", "RestGradient", "pose_rest_gradient", "elastic_rest_vjp", "ball_rest_vjp",
            "dirichlet_vjp", "problem_at", "moved", "solve_moved_pose"]
@@ -122,6 +123,7 @@ def pose_rest_gradient(sim, pose_index: int, weights, scene) -> RestGradient:
     return RestGradient(fine, elastic)
 
 
+@timed("assembly")
 def elastic_rest_vjp(problem: ElasticProblem, x: np.ndarray, adjoint: np.ndarray) -> np.ndarray:
     """``−∂/∂X [λ · ∇_x E(x, X)]`` ``(n_vertices, 3)`` at node positions ``x`` for the
     adjoint ``λ = adjoint`` ``(n_nodes, 3)``: the elastic energy's mixed second derivative
@@ -153,6 +155,7 @@ def elastic_rest_vjp(problem: ElasticProblem, x: np.ndarray, adjoint: np.ndarray
     return out
 
 
+@timed("assembly")
 def ball_rest_vjp(problem: ElasticProblem, ball: Ball, x: np.ndarray, adjoint: np.ndarray) -> np.ndarray:
     """``−∂/∂X [λ · ∇_x (κ Σ_i a_i(X) b(d_i(x)))]`` ``(n_vertices, 3)``: the barrier's
     rest dependence through the lumped top-surface areas ``a_i`` (as
@@ -195,6 +198,7 @@ def dirichlet_vjp(problem: ElasticProblem, pose, loading: Loading, v: np.ndarray
     raise AdjointError(f"pose {pose.name!r}: no Dirichlet derivative for kind {pose.kind!r}")
 
 
+@timed("assembly")
 def _hessian_product(problem: ElasticProblem, x: np.ndarray, v: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """``(H v)`` of the elastic Hessian on the nodes flagged in ``rows`` (others zero),
     from the elements touching them only. The ball adds nothing there when ``v`` vanishes

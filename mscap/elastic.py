@@ -26,6 +26,7 @@ import scipy.sparse as sp
 from . import fem, neohookean
 from .errors import MscapError
 from .layered import LayeredMesh, tet_values
+from .profile import timed
 
 __all__ = ["ElasticError", "ElasticProblem", "Assembly", "build_problem", "rest_geometry", "lame_of_tets",
            "assemble", "total_energy", "node_values", "tet_fields"]
@@ -194,6 +195,7 @@ def node_values(problem: ElasticProblem, vertex_values: np.ndarray) -> np.ndarra
     return np.concatenate([vertex_values, 0.5 * vertex_values[problem.edge_vertices].sum(axis=1)])
 
 
+@timed("assembly")
 def assemble(problem: ElasticProblem, x: np.ndarray, hessian: bool = True,
              project: bool = False) -> Assembly:
     """Elastic energy, gradient and Hessian at node positions ``x`` ``(n_nodes, 3)``.

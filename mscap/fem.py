@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .profile import timed
+
 __all__ = ["Element", "P1", "P2", "element", "dof_table", "jacobians", "stiffness", "energy_vjp"]
 
 #: Elements per block in the vectorised kernels (bounds temporary memory, not a loop
@@ -128,6 +130,7 @@ def jacobians(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndar
     return inv, det / 6.0
 
 
+@timed("assembly")
 def stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
     """Element matrices ``coefficient · ∫ ∇N_i · ∇N_j`` for all tets, ``(M, nb, nb)``.
 
@@ -144,6 +147,7 @@ def stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np
     return out
 
 
+@timed("assembly")
 def energy_vjp(el: Element, points: np.ndarray, tets: np.ndarray, dofs: np.ndarray,
                coefficient: np.ndarray, fields: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Vertex gradient of ``Σ_ab W_ab Σ_e c_e φ_aᵀ K_e(x) φ_b`` at fixed fields.

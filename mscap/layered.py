@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .mesh2d import TriMesh
+from .profile import timed
 
 __all__ = ["LayeredMesh", "extrude", "mesh_scene", "mesh_elastic", "level_heights", "layer_fractions",
            "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
@@ -176,6 +177,7 @@ def extrude(mesh2d: TriMesh, thicknesses_mm, elements_per_layer: int = 1,
     return LayeredMesh(mesh2d, z, points, tets, layer_of_tet, capacitor_of_tet, triangle_of_tet)
 
 
+@timed("meshing")
 def mesh_scene(scene) -> LayeredMesh:
     """Triangulate a :class:`~mscap.scene.Scene`'s sheet and layout, then extrude it."""
     from .mesh2d import triangulate
@@ -184,6 +186,7 @@ def mesh_scene(scene) -> LayeredMesh:
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer)
 
 
+@timed("meshing")
 def mesh_elastic(scene, mesh: LayeredMesh) -> LayeredMesh:
     """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
     "shared"``, else a triangulation with the same outlines embedded, so every tet lies

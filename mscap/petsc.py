@@ -15,6 +15,7 @@ import sys
 import numpy as np
 
 from .errors import MscapError
+from .profile import section
 
 __all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "aij", "LinearSolver",
            "LinearSolveError"]
@@ -127,8 +128,9 @@ class LinearSolver:
     def set_operator(self, mat) -> None:
         """Use ``mat`` (PETSc Mat) from now on; the factorisation happens here."""
         self._mat = mat
-        self.ksp.setOperators(mat)
-        self.ksp.setUp()
+        with section("factorisation"):
+            self.ksp.setOperators(mat)
+            self.ksp.setUp()
 
     def solve(self, rhs):
         """Solve for one right-hand side ``(n,)`` or several ``(n, m)`` columns."""
@@ -138,7 +140,8 @@ class LinearSolver:
         b, x = self._mat.createVecLeft(), self._mat.createVecRight()
         for j in range(columns.shape[1]):
             b.setArray(columns[:, j])
-            self.ksp.solve(b, x)
+            with section("solve"):
+                self.ksp.solve(b, x)
             reason = self.ksp.getConvergedReason()
             if reason < 0:
                 raise LinearSolveError(f"{self.prefix}ksp diverged (reason {reason}) on right-hand side {j}")

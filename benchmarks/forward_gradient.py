@@ -1,0 +1,185 @@
+"""Forward, gradient and optimisation-iteration cost per scene, split by kind of work.
+
+For each scene, in a process of its own (one core, ``OMP_NUM_THREADS=1``; peak memory
+per scene):
+
+1. **cold forward**: ``mscap.simulate.simulate`` — meshing, every pose along its full
+   load path, the electrostatics; what ``mscap simulate`` costs;
+2. **design set-up**: ``build_design`` (meshes, skinning weights of the controls);
+3. **evaluation** at the initial layout: every pose from rest (full load path) on the
+   design's mesh, J and C;
+4. **gradient** at that evaluation: the adjoints (one back-substitution per pose with
+   the kept factorisation) and the vector-Jacobian products;
+5. **warm evaluation + gradient** at a design moved 0.1 mm along −∇J, each pose
+   warm-started from the previous equilibrium: what one optimiser step costs when its
+   first trial is accepted;
+6. **optimisation**: ``--iterations`` accepted L-BFGS steps from the scene's layout,
+   time per accepted step (line-search trials included).
+
+Each stage's wall time is split with :mod:`mscap.profile` into meshing, assembly,
+factorisation, solve and other (Python and numpy outside the kernels). The issue's
+targets: gradient ≤ 1.5× the evaluation; a warm iteration ≥ 5× cheaper than a cold
+forward; ≤ 2 GB per process.
+
+Run (paper-resolution scenes, about 20 minutes on one core; ``--quick`` uses the
+``*_quick`` scenes and takes about 3 minutes)::
+
+    .venv/bin/python benchmarks/forward_gradient.py [--quick] [SCENE ...] [--iterations 5]
+
+Writes ``docs/forward_gradient.csv`` (``docs/forward_gradient_quick.csv``) and prints
+the tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):  # one core per process
+    os.environ.setdefault(_var, "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+SCENES = ["poking", "poking_cross", "biaxial", "pneumatic", "joystick", "wrist", "glove"]
+STAGES = ["cold_forward", "setup", "evaluation", "gradient", "warm_evaluation", "warm_gradient"]
+KINDS = ["meshing", "assembly", "factorisation", "solve", "other", "total"]
+
+
+def _timed(stage: str, out: dict, function, *args, **kwargs):
+    """Run ``function``, store its split under ``stage`` in ``out``, return its value."""
+    from mscap import profile
+
+    profile.reset()
+    start = time.perf_counter()
+    value = function(*args, **kwargs)
+    out[stage] = {k: round(v, 4) for k, v in profile.split(time.perf_counter() - start).items()}
+    return value
+
+
+def measure(path: Path, iterations: int) -> dict:
+    """Every stage of the module docstring for the scene file ``path``."""
+    import numpy as np
+
+    from mscap.design import build_design
+    from mscap.optimize import optimize
+    from mscap.scene import load_scene
+    from mscap.simulate import simulate
+
+    scene = load_scene(path)
+    out: dict = {"scene": scene.name, "poses": len(scene.poses)}
+    sim = _timed("cold_forward", out, simulate, scene)
+    out["tets"] = int(len(sim.mesh.tets))
+    out["elastic_tets"] = 0 if sim.elastic is None else int(len(sim.elastic.mesh.tets))
+    design = _timed("setup", out, build_design, scene)
+    q0 = design.deformer.zeros()
+    e0 = _timed("evaluation", out, design.evaluate, q0)
+    g0 = _timed("gradient", out, design.gradient, e0)
+    step = -0.1 * g0 / np.max(np.linalg.norm(g0, axis=1))  # the largest control moves 0.1 mm
+    e0.release()
+    e1 = _timed("warm_evaluation", out, design.evaluate, q0 + step, warm=e0)
+    _timed("warm_gradient", out, design.gradient, e1)
+    e1.release()
+    out["newton_cold"] = int(sum(e0.newton_iterations))
+    out["newton_warm"] = int(sum(e1.newton_iterations))
+    if iterations:
+        start = time.perf_counter()
+        result = optimize(build_design(scene), max_iterations=iterations, cascade_levels=0)
+        wall = time.perf_counter() - start
+        out["optimisation"] = {"iterations": result.iterations, "wall_s": round(wall, 2),
+                               "evaluations": int(sum(r.evaluations for r in result.history)),
+                               "per_iteration_s": round(wall / max(result.iterations, 1), 3),
+                               "min_l1_initial_pF": round(result.initial.min_l1_pF, 4),
+                               "min_l1_final_pF": round(result.evaluation.min_l1_pF, 4)}
+    out["peak_rss_MB"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+    return out
+
+
+def run_child(path: Path, iterations: int) -> dict:
+    command = [sys.executable, __file__, "--child", str(path), "--iterations", str(iterations)]
+    done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
+    if done.returncode:
+        sys.exit(f"{path.name}: failed\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def rows_of(result: dict) -> dict:
+    """The flat CSV row of one scene."""
+    row = {key: result[key] for key in ("scene", "poses", "tets", "elastic_tets", "newton_cold", "newton_warm",
+                                        "peak_rss_MB")}
+    for stage in STAGES:
+        for kind in KINDS:
+            row[f"{stage}_{kind}_s"] = result[stage][kind]
+    ev, gr = result["evaluation"]["total"], result["gradient"]["total"]
+    warm = result["warm_evaluation"]["total"] + result["warm_gradient"]["total"]
+    row["gradient_over_evaluation"] = round(gr / ev, 3)
+    row["cold_forward_over_warm_iteration"] = round(result["cold_forward"]["total"] / warm, 2)
+    for key, value in result.get("optimisation", {}).items():
+        row[f"opt_{key}"] = value
+    return row
+
+
+def print_tables(rows: list[dict]) -> None:
+    print("\n| scene | poses | tets (electro / elastic) | cold forward | evaluation | gradient | grad / eval | "
+          "warm eval + grad | cold / warm | peak memory |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        warm = r["warm_evaluation_total_s"] + r["warm_gradient_total_s"]
+        print(f"| {r['scene']} | {r['poses']} | {r['tets']:,} / {r['elastic_tets']:,} | "
+              f"{r['cold_forward_total_s']:.2f} s | {r['evaluation_total_s']:.2f} s | {r['gradient_total_s']:.2f} s | "
+              f"{r['gradient_over_evaluation']:.2f} | {warm:.2f} s | {r['cold_forward_over_warm_iteration']:.1f} | "
+              f"{r['peak_rss_MB']:.0f} MB |")
+    print("\nShares of each stage (meshing / assembly / factorisation / solve / other):\n")
+    print("| scene | " + " | ".join(STAGES) + " |")
+    print("|---|" + "---|" * len(STAGES))
+    for r in rows:
+        cells = []
+        for stage in STAGES:
+            total = r[f"{stage}_total_s"]
+            cells.append(" / ".join(f"{100 * r[f'{stage}_{k}_s'] / total:.0f}" for k in KINDS[:-1]))
+        print(f"| {r['scene']} | " + " | ".join(cells) + " |")
+    if any("opt_iterations" in r for r in rows):
+        print("\n| scene | accepted steps | evaluations | wall | per step | min L1 initial → final (pF) |")
+        print("|---|---|---|---|---|---|")
+        for r in rows:
+            if "opt_iterations" in r:
+                print(f"| {r['scene']} | {r['opt_iterations']} | {r['opt_evaluations']} | {r['opt_wall_s']:.1f} s | "
+                      f"{r['opt_per_iteration_s']:.2f} s | {r['opt_min_l1_initial_pF']} → {r['opt_min_l1_final_pF']} |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("scenes", nargs="*", default=SCENES, help=f"scene names (default: {' '.join(SCENES)})")
+    parser.add_argument("--quick", action="store_true", help="the *_quick scenes")
+    parser.add_argument("--iterations", type=int, default=5, help="accepted optimiser steps to time (0: none)")
+    parser.add_argument("--csv", help="output CSV (default docs/forward_gradient[_quick].csv)")
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(measure(Path(args.child), args.iterations)))
+        return
+    rows = []
+    for name in args.scenes:
+        path = ROOT / "jobs" / f"{name}{'_quick' if args.quick else ''}.toml"
+        print(f"{path.name} ...", flush=True)
+        rows.append(rows_of(run_child(path, args.iterations)))
+        print(json.dumps(rows[-1]), flush=True)
+    table = Path(args.csv or ROOT / "docs" / f"forward_gradient{'_quick' if args.quick else ''}.csv")
+    fields = list(dict.fromkeys(key for row in rows for key in row))
+    with open(table, "w", newline="") as f:
+        writer = csv.DictWriter(f, fields)
+        writer.writeheader()
+        writer.writerows(rows)
+    print_tables(rows)
+    print(f"\nwrote {table}")
+
+
+if __name__ == "__main__":
+    main()
