@@ -14,7 +14,9 @@ per scene):
    warm-started from the previous equilibrium: what one optimiser step costs when its
    first trial is accepted;
 6. **optimisation**: ``--iterations`` accepted L-BFGS steps from the scene's layout,
-   time per accepted step (line-search trials included).
+   time per accepted step (line-search trials included), in a process of its own: its
+   peak memory is what a multi-start worker needs (the finer-mesh check at the end of a
+   run excepted: benchmarks/scaling.py has memory against mesh size).
 
 Each stage's wall time is split with :mod:`mscap.profile` into meshing, assembly,
 factorisation, solve and other (Python and numpy outside the kernels). The issue's
@@ -64,12 +66,11 @@ def _timed(stage: str, out: dict, function, *args, **kwargs):
     return value
 
 
-def measure(path: Path, iterations: int) -> dict:
+def measure(path: Path) -> dict:
     """Every stage of the module docstring for the scene file ``path``."""
     import numpy as np
 
     from mscap.design import build_design
-    from mscap.optimize import optimize
     from mscap.scene import load_scene
     from mscap.simulate import simulate
 
@@ -89,21 +90,31 @@ def measure(path: Path, iterations: int) -> dict:
     e1.release()
     out["newton_cold"] = int(sum(e0.newton_iterations))
     out["newton_warm"] = int(sum(e1.newton_iterations))
-    if iterations:
-        start = time.perf_counter()
-        result = optimize(build_design(scene), max_iterations=iterations, cascade_levels=0)
-        wall = time.perf_counter() - start
-        out["optimisation"] = {"iterations": result.iterations, "wall_s": round(wall, 2),
-                               "evaluations": int(sum(r.evaluations for r in result.history)),
-                               "per_iteration_s": round(wall / max(result.iterations, 1), 3),
-                               "min_l1_initial_pF": round(result.initial.min_l1_pF, 4),
-                               "min_l1_final_pF": round(result.evaluation.min_l1_pF, 4)}
     out["peak_rss_MB"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     return out
 
 
-def run_child(path: Path, iterations: int) -> dict:
-    command = [sys.executable, __file__, "--child", str(path), "--iterations", str(iterations)]
+def measure_optimisation(path: Path, iterations: int) -> dict:
+    """``iterations`` accepted steps from the scene's layout, in a process of its own so
+    that its peak memory is what one multi-start worker needs for this scene."""
+    from mscap.design import build_design
+    from mscap.optimize import optimize
+    from mscap.scene import load_scene
+
+    scene = load_scene(path)
+    start = time.perf_counter()
+    result = optimize(build_design(scene), max_iterations=iterations, cascade_levels=0)
+    wall = time.perf_counter() - start
+    return {"iterations": result.iterations, "wall_s": round(wall, 2),
+            "evaluations": int(sum(r.evaluations for r in result.history)),
+            "per_iteration_s": round(wall / max(result.iterations, 1), 3),
+            "min_l1_initial_pF": round(result.initial.min_l1_pF, 4),
+            "min_l1_final_pF": round(result.evaluation.min_l1_pF, 4),
+            "peak_rss_MB": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)}
+
+
+def run_child(path: Path, iterations: int, part: str) -> dict:
+    command = [sys.executable, __file__, f"--child-{part}", str(path), "--iterations", str(iterations)]
     done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
     if done.returncode:
         sys.exit(f"{path.name}: failed\n{done.stderr[-3000:]}")
@@ -128,7 +139,7 @@ def rows_of(result: dict) -> dict:
 
 def print_tables(rows: list[dict]) -> None:
     print("\n| scene | poses | tets (electro / elastic) | cold forward | evaluation | gradient | grad / eval | "
-          "warm eval + grad | cold / warm | peak memory |")
+          "warm eval + grad | cold / warm | peak memory (stages) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         warm = r["warm_evaluation_total_s"] + r["warm_gradient_total_s"]
@@ -146,12 +157,13 @@ def print_tables(rows: list[dict]) -> None:
             cells.append(" / ".join(f"{100 * r[f'{stage}_{k}_s'] / total:.0f}" for k in KINDS[:-1]))
         print(f"| {r['scene']} | " + " | ".join(cells) + " |")
     if any("opt_iterations" in r for r in rows):
-        print("\n| scene | accepted steps | evaluations | wall | per step | min L1 initial → final (pF) |")
-        print("|---|---|---|---|---|---|")
+        print("\n| scene | accepted steps | evaluations | wall | per step | min L1 initial → final (pF) | peak memory |")
+        print("|---|---|---|---|---|---|---|")
         for r in rows:
             if "opt_iterations" in r:
                 print(f"| {r['scene']} | {r['opt_iterations']} | {r['opt_evaluations']} | {r['opt_wall_s']:.1f} s | "
-                      f"{r['opt_per_iteration_s']:.2f} s | {r['opt_min_l1_initial_pF']} → {r['opt_min_l1_final_pF']} |")
+                      f"{r['opt_per_iteration_s']:.2f} s | {r['opt_min_l1_initial_pF']} → {r['opt_min_l1_final_pF']} | "
+                      f"{r['opt_peak_rss_MB']:.0f} MB |")
 
 
 def main() -> None:
@@ -160,16 +172,23 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="the *_quick scenes")
     parser.add_argument("--iterations", type=int, default=5, help="accepted optimiser steps to time (0: none)")
     parser.add_argument("--csv", help="output CSV (default docs/forward_gradient[_quick].csv)")
-    parser.add_argument("--child", help=argparse.SUPPRESS)
+    parser.add_argument("--child-stages", help=argparse.SUPPRESS)
+    parser.add_argument("--child-optimisation", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.child:
-        print(json.dumps(measure(Path(args.child), args.iterations)))
+    if args.child_stages:
+        print(json.dumps(measure(Path(args.child_stages))))
+        return
+    if args.child_optimisation:
+        print(json.dumps(measure_optimisation(Path(args.child_optimisation), args.iterations)))
         return
     rows = []
     for name in args.scenes:
         path = ROOT / "jobs" / f"{name}{'_quick' if args.quick else ''}.toml"
         print(f"{path.name} ...", flush=True)
-        rows.append(rows_of(run_child(path, args.iterations)))
+        result = run_child(path, args.iterations, "stages")
+        if args.iterations:
+            result["optimisation"] = run_child(path, args.iterations, "optimisation")
+        rows.append(rows_of(result))
         print(json.dumps(rows[-1]), flush=True)
     table = Path(args.csv or ROOT / "docs" / f"forward_gradient{'_quick' if args.quick else ''}.csv")
     fields = list(dict.fromkeys(key for row in rows for key in row))

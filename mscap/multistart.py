@@ -48,6 +48,9 @@ def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | N
         result = optimize(design, max_iterations=max_iterations)
         record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
                                     time.perf_counter() - start, rank)
+        final = result.layout
+        result.evaluation.release()
+        del design, result  # the finer mesh's check below should not add to the design's memory
     except Exception as exc:  # a failed start is a result, not a crash of the job
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
         return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
@@ -55,7 +58,7 @@ def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | N
     if not scene.multistart.error_estimate:
         return record
     try:
-        check = estimate_error(scene, result.layout, record.final_capacitance_pF)
+        check = estimate_error(scene, final, record.final_capacitance_pF)
     except Exception as exc:  # the run stands; only its accuracy is unknown
         log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
                     config.id, type(exc).__name__, exc)
