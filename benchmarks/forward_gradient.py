@@ -28,8 +28,8 @@ Run (paper-resolution scenes, about 20 minutes on one core; ``--quick`` uses the
 
     .venv/bin/python benchmarks/forward_gradient.py [--quick] [SCENE ...] [--iterations 5]
 
-Writes ``docs/forward_gradient.csv`` (``docs/forward_gradient_quick.csv``) and prints
-the tables.
+Writes ``docs/forward_gradient.csv`` and ``.png`` (``docs/forward_gradient_quick.*``)
+and prints the tables; ``--replot`` redraws the PNG from the CSV.
 """
 
 from __future__ import annotations
@@ -166,12 +166,44 @@ def print_tables(rows: list[dict]) -> None:
                       f"{r['opt_peak_rss_MB']:.0f} MB |")
 
 
+def plot(rows: list[dict], path: Path) -> None:
+    """Stacked bars per scene: each stage's time split by kind of work."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    stages = ["cold_forward", "evaluation", "gradient", "warm_evaluation", "warm_gradient"]
+    labels = ["cold forward", "evaluation", "gradient", "warm evaluation", "warm gradient"]
+    colours = ["#4daf4a", "#377eb8", "#e41a1c", "#984ea3", "#999999"]
+    fig, axes = plt.subplots(1, len(rows), figsize=(2.6 * len(rows), 3.6), sharey=False)
+    for ax, row in zip(np.atleast_1d(axes), rows):
+        bottom = np.zeros(len(stages))
+        for kind, colour in zip(KINDS[:-1], colours):
+            values = np.array([float(row[f"{stage}_{kind}_s"]) for stage in stages])
+            ax.bar(range(len(stages)), values, bottom=bottom, color=colour, label=kind)
+            bottom += values
+        ax.set_title(f"{row['scene']}\ngrad/eval {float(row['gradient_over_evaluation']):.2f}, "
+                     f"cold/warm {float(row['cold_forward_over_warm_iteration']):.1f}", fontsize=8)
+        ax.set_xticks(range(len(stages)), labels, rotation=60, ha="right", fontsize=7)
+        ax.tick_params(axis="y", labelsize=7)
+        ax.grid(axis="y", alpha=0.3)
+    np.atleast_1d(axes)[0].set_ylabel("wall time on one core (s)")
+    np.atleast_1d(axes)[-1].legend(fontsize=7)
+    fig.suptitle("forward, gradient and a warm optimiser step per scene, split by kind of work", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("scenes", nargs="*", default=SCENES, help=f"scene names (default: {' '.join(SCENES)})")
     parser.add_argument("--quick", action="store_true", help="the *_quick scenes")
     parser.add_argument("--iterations", type=int, default=5, help="accepted optimiser steps to time (0: none)")
     parser.add_argument("--csv", help="output CSV (default docs/forward_gradient[_quick].csv)")
+    parser.add_argument("--replot", action="store_true", help="only redraw the PNG from the CSV")
     parser.add_argument("--child-stages", help=argparse.SUPPRESS)
     parser.add_argument("--child-optimisation", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -180,6 +212,11 @@ def main() -> None:
         return
     if args.child_optimisation:
         print(json.dumps(measure_optimisation(Path(args.child_optimisation), args.iterations)))
+        return
+    table = Path(args.csv or ROOT / "docs" / f"forward_gradient{'_quick' if args.quick else ''}.csv")
+    if args.replot:
+        with open(table) as f:
+            plot(list(csv.DictReader(f)), table.with_suffix(".png"))
         return
     rows = []
     for name in args.scenes:
@@ -190,14 +227,14 @@ def main() -> None:
             result["optimisation"] = run_child(path, args.iterations, "optimisation")
         rows.append(rows_of(result))
         print(json.dumps(rows[-1]), flush=True)
-    table = Path(args.csv or ROOT / "docs" / f"forward_gradient{'_quick' if args.quick else ''}.csv")
     fields = list(dict.fromkeys(key for row in rows for key in row))
     with open(table, "w", newline="") as f:
         writer = csv.DictWriter(f, fields)
         writer.writeheader()
         writer.writerows(rows)
     print_tables(rows)
-    print(f"\nwrote {table}")
+    plot(rows, table.with_suffix(".png"))
+    print(f"\nwrote {table} and {table.with_suffix('.png')}")
 
 
 if __name__ == "__main__":

@@ -34,7 +34,6 @@ prints a Markdown table. The HDF5 files go to a temporary directory (printed).
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import os
 import shutil
@@ -48,6 +47,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from benchmarks._common import table_head, write_csv  # noqa: E402
 
 from mscap.store import finished_ids, read_run, read_store  # noqa: E402
 
@@ -125,20 +126,11 @@ def add_speedup(rows) -> None:
         row["speedup"] = ref["workers"] * ref["job_wall_s"] / row["job_wall_s"]
 
 
-def write_csv(rows, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=FIELDS)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-
-
 def markdown(rows) -> str:
     """The jobs as a Markdown table."""
     head = ("| ranks (workers) | runs (per worker) | job wall s | Σ run wall s | busy fraction | speed-up "
             "| idle per run s | max abs ΔC pF |")
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    lines = table_head(head)
     for r in rows:
         mark = f", oversubscribed on {r['cores']} cores" if r["oversubscribed"] else ""
         failed = f", {r['failed']} failed" if r["failed"] else ""
@@ -211,7 +203,7 @@ def main(argv=None):
 
     csv_path = Path(args.csv or out_dir / "multistart_scaling.csv")
     png_path = Path(args.png or out_dir / "multistart_scaling.png")
-    write_csv(rows, csv_path)
+    write_csv(rows, csv_path, FIELDS)
     plot(rows, png_path, Path(args.scene).stem)
     print("\n" + markdown(rows) + "\n")
     single = [r for r in rows if r["workers"] == 1]

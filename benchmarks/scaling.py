@@ -33,7 +33,6 @@ and prints a Markdown table and the exponents.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import subprocess
@@ -50,6 +49,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from benchmarks._common import table_head, write_csv  # noqa: E402
 
 #: Edge-length factors: on poking.toml 76,740 to 1,821,750 electrostatic tets (24×).
 FACTORS = (2.83, 2.0, 1.41, 1.0, 0.71, 0.5, 0.35)
@@ -143,20 +144,11 @@ def tets_at_target(rows, fitted) -> float:
     return float(np.exp((np.log(TARGET_MB - start) - a) / p))
 
 
-def write_csv(rows, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=FIELDS)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-
-
 def markdown(rows) -> str:
     """The levels as a Markdown table."""
     head = ("| factor | h_out mm | tets | vertices | elastic tets | mesh s | setup s | elastic s | electro s "
             "| total s | assembly s | factor. s | solve s | other s | peak MB |")
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    lines = table_head(head)
     for r in rows:
         lines.append(f"| {r['factor']:g} | {r['edge_length_outline_mm']:.3g} | {r['tets']:,} | {r['vertices']:,} "
                      f"| {r['elastic_tets']:,} | {r['mesh_s']:.2f} | {r['setup_s']:.2f} | {r['elastic_s']:.2f} "
@@ -224,7 +216,7 @@ def main(argv=None):
     factors = args.factors or (QUICK_FACTORS if args.quick else FACTORS)
     rows = [run_level(scene_path, factor) for factor in factors]
     fitted = fits(rows)
-    write_csv(rows, csv_path)
+    write_csv(rows, csv_path, FIELDS)
     plot(rows, fitted, png_path, Path(scene_path).stem)
     print("\n" + markdown(rows) + "\n")
     for key, (p, _) in fitted.items():

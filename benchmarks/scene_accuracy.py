@@ -64,7 +64,6 @@ level within 1 %, the issue's default accuracy target.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
@@ -82,6 +81,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from benchmarks._common import table_head, write_csv  # noqa: E402
 
 SCENES = ("poking", "poking_cross", "biaxial", "pneumatic", "joystick", "wrist", "glove")
 #: Edge-length factors, powers of √2 (2√2 … 1/2): Richardson over the three finest.
@@ -253,7 +254,7 @@ def markdown(rows) -> str:
     """One scene's levels as a Markdown table."""
     head = ("| factor | electro/elastic | tets | elastic tets | wall s | peak MB | error % | vs finest % "
             "| estimate % |")
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    lines = table_head(head)
     for r in rows:
         mark = " ★" if r["kind"] == "default" else ""
         estimate = "" if math.isnan(r["estimate"]) else f"{100 * r['estimate']:.3f}"
@@ -274,15 +275,6 @@ def summary(rows) -> str:
         f"; cheapest within 1 %: factor {cheapest['factor']:.3g}, P{cheapest['electro_order']}/"
         f"P{cheapest['elastic_order']}, {cheapest['wall_s']:.2f} s, error {100 * cheapest['error']:.3f} %")
     return text
-
-
-def write_csv(rows, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=FIELDS)
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
 
 
 def plot(rows, names, path: Path) -> None:
@@ -387,7 +379,7 @@ def main(argv=None):
     rows = []
     for path in paths:
         rows += run_scene(path, factors, variants, args.max_seconds)
-    write_csv(rows, csv_path)
+    write_csv(rows, csv_path, FIELDS)
     plot(rows, [Path(p).stem for p in paths], png_path)
     print("## Summary\n")
     for path in paths:

@@ -303,7 +303,7 @@ def test_quick_scene_has_the_full_scenes_geometry_and_poses(scenes, name):
             np.testing.assert_array_equal(a.rest.triangles, b.rest.triangles)
     else:
         assert full.poses == quick.poses
-    assert full.layers == quick.layers and full.multistart == quick.multistart
+    assert full.layers == quick.layers  # [multistart]: tests/test_jobs.py (the quick one is smaller)
     for a, b in zip(full.layout.outlines, quick.layout.outlines):
         np.testing.assert_array_equal(a, b)
     assert quick.mesh.edge_length_outline_mm > full.mesh.edge_length_outline_mm

@@ -275,6 +275,6 @@ def test_quick_scene_has_the_full_scenes_geometry_and_poses(scenes, name):
     assert [p.generator_parameters for p in full.poses] == \
         [p.generator_parameters for p in quick.poses]
     np.testing.assert_array_equal(full.poses[0].object.rest.uv, quick.poses[0].object.rest.uv)
-    assert full.layers == quick.layers and full.multistart == quick.multistart
+    assert full.layers == quick.layers  # [multistart]: tests/test_jobs.py (the quick one is smaller)
     assert len(full.layout.outlines) == len(quick.layout.outlines)
     assert quick.mesh.edge_length_outline_mm > full.mesh.edge_length_outline_mm

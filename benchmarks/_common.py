@@ -1,0 +1,21 @@
+"""Helpers shared by the benchmark scripts (imported as ``benchmarks._common``)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+
+def write_csv(rows, path: Path, fields) -> None:
+    """``rows`` (dicts) as CSV with the columns ``fields``; floats to 6 significant digits."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+
+
+def table_head(head: str) -> list[str]:
+    """A Markdown table's header line and its rule."""
+    return [head, "|" + "---|" * (head.count("|") - 1)]
