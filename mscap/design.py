@@ -90,8 +90,6 @@ class Evaluation:
         """Destroy the kept factorisations (PETSc objects) now: :meth:`Design.gradient`
         needs them, nothing else does. Dropping the last reference is not enough — the
         poking scene kept ~34 MB of native memory per evaluation alive that way."""
-        if self.released:
-            return
         for result in self.sim.poses:
             operator = None if result.state is None else result.state.operator
             if operator is not None:

@@ -118,19 +118,27 @@ def dof_table(tets: np.ndarray, n_vertices: int, order: int) -> tuple[np.ndarray
     return dofs, n_vertices + len(unique)
 
 
-def jacobians(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse Jacobians ``(M, 3, 3)`` and signed volumes ``(M,)`` of affine tets."""
-    # Coordinates as (3, M) rows: component-wise products run on long contiguous arrays,
-    # 2x faster than np.cross on (M, 3) (measured on 300k tets).
+def _edges(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The edge vectors from vertex 0 (the columns of J), each as (3, M) component rows:
+    component-wise products then run on long contiguous arrays, 2x faster than np.cross
+    on (M, 3) (measured on 300k tets)."""
     x = np.asarray(points, dtype=float).T
     p0 = x[:, tets[:, 0]]
-    e0, e1, e2 = x[:, tets[:, 1]] - p0, x[:, tets[:, 2]] - p0, x[:, tets[:, 3]] - p0  # columns of J
+    return x[:, tets[:, 1]] - p0, x[:, tets[:, 2]] - p0, x[:, tets[:, 3]] - p0
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Components of a × b for (3, M) rows."""
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+
+
+def jacobians(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse Jacobians ``(M, 3, 3)`` and signed volumes ``(M,)`` of affine tets."""
+    e0, e1, e2 = _edges(points, tets)
     # Rows of J⁻¹ are the cofactor vectors e1×e2, e2×e0, e0×e1 over det J.
     inv = np.empty((len(tets), 3, 3))
     for row, (a, b) in enumerate(((e1, e2), (e2, e0), (e0, e1))):
-        inv[:, row, 0] = a[1] * b[2] - a[2] * b[1]
-        inv[:, row, 1] = a[2] * b[0] - a[0] * b[2]
-        inv[:, row, 2] = a[0] * b[1] - a[1] * b[0]
+        inv[:, row, 0], inv[:, row, 1], inv[:, row, 2] = _cross(a, b)
     det = e0[0] * inv[:, 0, 0] + e0[1] * inv[:, 0, 1] + e0[2] * inv[:, 0, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         inv /= det[:, None, None]
@@ -139,11 +147,9 @@ def jacobians(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 def volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """Signed volumes ``(M,)`` of affine tets (det J / 6), without the inverses."""
-    x = np.asarray(points, dtype=float).T
-    p0 = x[:, tets[:, 0]]
-    e0, e1, e2 = x[:, tets[:, 1]] - p0, x[:, tets[:, 2]] - p0, x[:, tets[:, 3]] - p0
-    return (e0[0] * (e1[1] * e2[2] - e1[2] * e2[1]) + e0[1] * (e1[2] * e2[0] - e1[0] * e2[2])
-            + e0[2] * (e1[0] * e2[1] - e1[1] * e2[0])) / 6.0
+    e0, e1, e2 = _edges(points, tets)
+    c0, c1, c2 = _cross(e1, e2)
+    return (e0[0] * c0 + e0[1] * c1 + e0[2] * c2) / 6.0
 
 
 @timed("assembly")

@@ -49,7 +49,6 @@ def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | N
         record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
                                     time.perf_counter() - start, rank)
         final = result.layout
-        result.evaluation.release()
         del design, result  # the finer mesh's check below should not add to the design's memory
     except Exception as exc:  # a failed start is a result, not a crash of the job
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
@@ -63,8 +62,7 @@ def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | N
         log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
                     config.id, type(exc).__name__, exc)
         return record
-    return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate=check.error,
-                   finer_metric_pF=check.metric_pF, error_estimate_wall_s=check.wall_s)
+    return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s)
 
 
 def run_multistart(scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,

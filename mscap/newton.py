@@ -38,7 +38,7 @@ import scipy.sparse as sp
 from .contact import Ball
 from .elastic import ElasticError, ElasticProblem, assemble, total_energy
 from .petsc import LinearSolveError, LinearSolver, petsc
-from .profile import section
+from .profile import timed
 from .scene import HESSIAN_MODES, ElasticSettings
 
 __all__ = ["Loading", "NewtonSettings", "ElasticState", "Operator", "solve_pose", "HESSIAN_MODES"]
@@ -196,11 +196,8 @@ class _Pose:
         e, _ = total_energy(self.problem, x)
         return e + (self.ball.energy(x) if self.ball is not None and np.isfinite(e) else 0.0)
 
+    @timed("assembly")
     def gradient_and_hessian(self, x: np.ndarray, hessian: bool, project: bool):
-        with section("assembly"):
-            return self._gradient_and_hessian(x, hessian, project)
-
-    def _gradient_and_hessian(self, x: np.ndarray, hessian: bool, project: bool):
         start = time.perf_counter()
         a = assemble(self.problem, x, hessian=hessian, project=project)
         if not np.isfinite(a.energy):

@@ -28,24 +28,25 @@ __all__ = ["KINDS", "section", "timed", "reset", "totals", "split"]
 KINDS = ("meshing", "assembly", "factorisation", "solve")
 
 _totals = dict.fromkeys(KINDS, 0.0)
-_open = [0]
+_inside = False  # a section is open: inner ones count for it
 
 
 @contextmanager
 def section(kind: str):
     """Count the wall time of the block as ``kind`` (one of :data:`KINDS`)."""
+    global _inside
     if kind not in _totals:
         raise ValueError(f"unknown profile section {kind!r}; expected one of {', '.join(KINDS)}")
-    if _open[0]:
+    if _inside:
         yield
         return
-    _open[0] = 1
+    _inside = True
     start = time.perf_counter()
     try:
         yield
     finally:
         _totals[kind] += time.perf_counter() - start
-        _open[0] = 0
+        _inside = False
 
 
 def timed(kind: str):

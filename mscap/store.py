@@ -21,6 +21,7 @@ import h5py
 import numpy as np
 
 from . import __version__
+from .accuracy import relative_difference
 from .design import min_pairwise_l1
 from .errors import MscapError
 from .optimize import HISTORY_FIELDS
@@ -156,8 +157,6 @@ class RunRecord:
     final_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     history: dict = field(default_factory=_empty_history)
     finer_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    error_estimate: float = math.nan
-    finer_metric_pF: float = math.nan
     error_estimate_wall_s: float = math.nan
 
     @property
@@ -174,6 +173,23 @@ class RunRecord:
         if not self.ok or len(self.final_capacitance_pF) == 0:
             return math.nan
         return min_pairwise_l1(self.final_capacitance_pF)
+
+    @property
+    def checked(self) -> bool:
+        """Was the final design re-simulated on a finer mesh (:mod:`mscap.accuracy`)?"""
+        return self.ok and np.size(self.finer_capacitance_pF) > 0
+
+    @property
+    def error_estimate(self) -> float:
+        """Max relative difference of the final capacitances from the finer mesh's; NaN
+        if not checked."""
+        return relative_difference(self.final_capacitance_pF, self.finer_capacitance_pF) if self.checked \
+            else math.nan
+
+    @property
+    def finer_metric_pF(self) -> float:
+        """Min pairwise L1 distance on the finer mesh (pF); NaN if not checked."""
+        return min_pairwise_l1(self.finer_capacitance_pF) if self.checked else math.nan
 
 
 def record_from_result(k: int, seed: int, init: str, initial_layout, result, poses, wall_s: float,
@@ -389,8 +405,6 @@ def read_run(store: h5py.File, rid: str) -> RunRecord:
                      # schema 1 files have no check: NaN
                      finer_capacitance_pF=g["finer_capacitance_pF"][()] if "finer_capacitance_pF" in g
                      else np.zeros((0, int(a["k"]))),
-                     error_estimate=float(a.get("error_estimate", math.nan)),
-                     finer_metric_pF=float(a.get("finer_metric_pF", math.nan)),
                      error_estimate_wall_s=float(a.get("error_estimate_wall_s", math.nan)))
 
 

@@ -25,21 +25,21 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-def _check(checks: dict | None, rid) -> tuple[float, float]:
-    """(error_estimate, its wall time) of run ``rid`` (NaN if unknown)."""
-    return (checks or {}).get(rid, (math.nan, math.nan))
+def _error(errors: dict | None, rid) -> float:
+    """The finer-mesh error estimate of run ``rid`` (NaN if unknown)."""
+    return (errors or {}).get(rid, math.nan)
 
 
 def _finite_or_none(x: float):
     return x if math.isfinite(x) else None
 
 
-def summary_json(selection, checks: dict | None = None) -> dict:
-    """The ``--json`` document of a ``Selection``; ``checks`` maps run ids to their
-    (error_estimate, error_estimate_wall_s)."""
+def summary_json(selection, errors: dict | None = None) -> dict:
+    """The ``--json`` document of a ``Selection``; ``errors`` maps run ids to their
+    finer-mesh error estimates."""
     return {"per_k": [{"k": s.k, "runs_ok": s.runs_ok, "runs_failed": s.runs_failed,
                        "best_metric": s.best_metric, "best_run": s.best_run, "wall_s": s.wall_s,
-                       "best_error_estimate": _finite_or_none(_check(checks, s.best_run)[0])}
+                       "best_error_estimate": _finite_or_none(_error(errors, s.best_run))}
                       for s in selection.per_k],
             "chosen_k": selection.chosen_k, "chosen_run": selection.chosen_run,
             "plateau_tol": selection.plateau_tol, "plateau_reached": selection.plateau_reached,
@@ -50,7 +50,7 @@ def _percent(x: float) -> str:
     return f"{100 * x:.2f} %" if math.isfinite(x) else "-"
 
 
-def table(selection, title: str = "", checks: dict | None = None) -> str:
+def table(selection, title: str = "", errors: dict | None = None) -> str:
     """The per-k table; ``*`` marks the chosen k. ``error`` is the best run's finer-mesh
     error estimate, ``time`` the summed wall time of the k's runs."""
     lines = [title] if title else []
@@ -60,7 +60,7 @@ def table(selection, title: str = "", checks: dict | None = None) -> str:
         mark = "*" if s.k == selection.chosen_k else " "
         metric = "-" if s.best_metric is None else f"{s.best_metric:.6g}"
         lines.append(f"{mark} {s.k:>3} {s.runs_ok:>4} {s.runs_failed:>6} {metric:>17} "
-                     f"{s.best_run or '-':<20} {_percent(_check(checks, s.best_run)[0]):>8} {s.wall_s:>9.1f}")
+                     f"{s.best_run or '-':<20} {_percent(_error(errors, s.best_run)):>8} {s.wall_s:>9.1f}")
     if selection.chosen_k is None:
         lines.append("no successful run: no k chosen")
     else:
@@ -117,13 +117,11 @@ def run(args) -> int:
             print(runs_table(read_run(store, rid) for rid in sorted(finished_ids(store))))
             return 0
         selection = store_selection(store)
-        checks = {}
-        for rid in finished_ids(store):
-            a = store["runs"][rid].attrs
-            checks[rid] = (float(a.get("error_estimate", math.nan)), float(a.get("error_estimate_wall_s", math.nan)))
+        errors = {rid: float(store["runs"][rid].attrs.get("error_estimate", math.nan))  # NaN: schema 1
+                  for rid in finished_ids(store)}
         if args.json:
-            print(json.dumps(summary_json(selection, checks), indent=1))
+            print(json.dumps(summary_json(selection, errors), indent=1))
         else:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
-                                   f"(sha256 {store.attrs['scene_sha256'][:12]}…)", checks))
+                                   f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors))
     return 0
