@@ -193,6 +193,29 @@ def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_pat
     assert all(read_run(store, rid).ok for rid in finished_ids(store)) and len(finished_ids(store)) == 4
 
 
+def session_members(sid: int) -> list[int]:
+    """Live processes of session ``sid`` (zombies, already dead, left out)."""
+    members = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rindex(")") + 2:].split()  # state, ppid, pgrp, session, ...
+            if int(fields[3]) == sid and fields[0] != "Z":
+                members.append(int(entry.name))
+    return members
+
+
+def signal_session(sid: int, signum: int) -> None:
+    for pid in session_members(sid):
+        try:
+            os.kill(pid, signum)
+        except ProcessLookupError:
+            pass
+
+
 @needs_mpirun
 @pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGKILL"])
 def test_a_killed_job_leaves_a_readable_file_and_the_rerun_completes_it(scene_file, tmp_path, signal_name):
@@ -207,9 +230,14 @@ def test_a_killed_job_leaves_a_readable_file_and_the_rerun_completes_it(scene_fi
     for line in job.stderr:  # wait for the first stored run
         if line.startswith("[1/"):
             break
-    os.killpg(job.pid, getattr(signal, signal_name))
+    # mpirun puts every rank in a process group of its own, in mpirun's session: signal the
+    # whole session, as SLURM signals every process of a job step, and wait until it is gone.
+    signal_session(job.pid, getattr(signal, signal_name))
     job.communicate(timeout=60)
-    time.sleep(0.5)
+    deadline = time.monotonic() + 60
+    while session_members(job.pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not session_members(job.pid), "ranks outlived the killed job"
     store = read_store(out)  # opens after any kill
     before = {rid: read_run(store, rid).wall_s for rid in finished_ids(store)}
     store.close()
