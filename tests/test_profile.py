@@ -10,15 +10,20 @@ from mscap import profile
 
 
 def test_sections_add_up_and_do_not_nest():
+    # Compared with the measured durations, not the nominal sleeps: a busy machine oversleeps.
     profile.reset()
+    start = time.perf_counter()
     with profile.section("assembly"):
         time.sleep(0.02)
         with profile.section("solve"):  # inside assembly: counted as assembly only
             time.sleep(0.02)
+    outer = time.perf_counter() - start
+    start = time.perf_counter()
     with profile.section("solve"):
         time.sleep(0.01)
+    alone = time.perf_counter() - start
     t = profile.totals()
-    assert t["assembly"] == pytest.approx(0.04, abs=0.015) and t["solve"] == pytest.approx(0.01, abs=0.008)
+    assert 0.04 <= t["assembly"] <= outer and 0.01 <= t["solve"] <= alone
     split = profile.split(0.1)
     assert split["other"] == pytest.approx(0.1 - t["assembly"] - t["solve"]) and split["total"] == 0.1
     profile.reset()
