@@ -32,7 +32,7 @@ import scipy.sparse as sp
 from . import fem
 from .errors import MscapError
 from .layered import BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE_LAYER, LayeredMesh, tet_values
-from .petsc import LinearSolver, aij, petsc
+from .petsc import LinearSolver, petsc
 
 __all__ = ["ElectrostaticError", "ElectrostaticProblem", "Capacitances", "build_problem",
            "permittivity_of_tets", "assemble", "solve", "capacitance_vjp", "capacitance_jacobian", "maxwell_vjp"]
@@ -304,7 +304,7 @@ def solve(problem: ElectrostaticProblem, x: np.ndarray | None = None, maxwell: b
     if n_free:
         solver = solver or LinearSolver("electro_")
         try:
-            solver.set_operator(aij(kff, spd=True))
+            solver.set_csr(kff, spd=True)
             factorised = time.perf_counter()
             u = solver.solve(rhs)
         except petsc().Error as exc:

