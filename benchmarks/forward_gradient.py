@@ -190,9 +190,10 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.tick_params(axis="y", labelsize=7)
         ax.grid(axis="y", alpha=0.3)
     np.atleast_1d(axes)[0].set_ylabel("wall time on one core (s)")
-    np.atleast_1d(axes)[-1].legend(fontsize=7)
+    handles, names = np.atleast_1d(axes)[0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="lower center", ncol=len(names), fontsize=8, frameon=False)  # below the bars
     fig.suptitle("forward, gradient and a warm optimiser step per scene, split by kind of work", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -71,8 +71,10 @@ def test_three_ranks_write_a_complete_file(three_ranks, capsys):
     ranks = {read_run(store, rid).rank for rid in finished_ids(store)}
     assert ranks <= {1, 2} and ranks  # the master only schedules and writes
     store.close()
-    # One progress line per run, on stderr.
-    assert sum(line.startswith("[") for line in done.stderr.splitlines()) == 4
+    # One progress line per run, on stderr. The largest k is handed out first (one k = 3
+    # start per worker), so no k = 2 start can finish before a k = 3 one.
+    progress = [line for line in done.stderr.splitlines() if line.startswith("[")]
+    assert len(progress) == 4 and progress[0].startswith("[1/4] k3_")
     assert main(["inspect", str(out), "--json"]) == 0
     table = json.loads(capsys.readouterr().out)
     assert table["runs_total"] == 4 and table["chosen_k"] in (2, 3)
