@@ -261,12 +261,17 @@ def assemble(problem: ElectrostaticProblem, x: np.ndarray | None = None) -> np.n
         If a dielectric tet is inverted or degenerate at ``x``.
     """
     x = _positions(problem, x)
-    vol = fem.volumes(x, problem.tets)
-    bad = np.flatnonzero(~(vol > 0))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # degenerate tets: reported below
+        local = fem.stiffness(problem.element, x, problem.tets, problem.permittivity)
+    # A vertex's diagonal entry ε vol ∫|∇N_0|² has the sign of the volume (ε > 0): a
+    # non-positive or non-finite one marks an inverted or degenerate tet, without a
+    # second pass over all tets for their volumes (a third of the assembly's time).
+    corner = local[:, 0, 0]
+    bad = np.flatnonzero(~(np.isfinite(corner) & (corner > 0)))
     if len(bad):
+        vol = fem.volumes(x, problem.tets[bad[:1]])[0]
         raise ElectrostaticError(f"{len(bad)} dielectric tets are inverted or degenerate at the given "
-                                 f"positions (e.g. tet {int(bad[0])}, volume {vol[bad[0]]:.3g} mm³)")
-    local = fem.stiffness(problem.element, x, problem.tets, problem.permittivity)
+                                 f"positions (e.g. tet {int(bad[0])}, volume {vol:.3g} mm³)")
     return np.bincount(problem.entry_to_csr, weights=local.ravel(), minlength=len(problem.indices))
 
 

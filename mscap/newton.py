@@ -130,28 +130,20 @@ class ElasticState:
 
 
 class Operator:
-    """The Hessian as a PETSc matrix over the problem's fixed CSR pattern, and its solver.
-
-    The matrix wraps ``data`` without copying: writing new values and calling
-    :meth:`factorise` refactorises numerically and reuses the symbolic factorisation."""
+    """The Hessian over the problem's fixed CSR pattern, and its solver: the pattern never
+    changes, so every factorisation after the first is numeric only
+    (:meth:`~mscap.petsc.LinearSolver.set_csr` keeps the symbolic one)."""
 
     def __init__(self, problem: ElasticProblem, prefix: str = "elastic_"):
-        PETSc = petsc()
-        self.data = np.zeros(len(problem.indices))
-        self._indptr = problem.indptr.astype(PETSc.IntType)
-        self._indices = problem.indices.astype(PETSc.IntType)
-        self.mat = PETSc.Mat().createAIJWithArrays((problem.n_dofs, problem.n_dofs),
-                                                   (self._indptr, self._indices, self.data),
-                                                   comm=PETSc.COMM_SELF)
-        self.mat.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        self._pattern = (problem.indices, problem.indptr)
+        self._shape = (problem.n_dofs, problem.n_dofs)
         self.solver = LinearSolver(prefix)
 
-    def factorise(self) -> None:
-        """Factorise the current ``data``; a failed factorisation raises
+    def factorise(self, data: np.ndarray) -> None:
+        """Factorise the matrix with CSR values ``data``; a failed factorisation raises
         :class:`LinearSolveError` here or at the first :meth:`solve`."""
-        self.mat.assemble()  # bumps the matrix state: PETSc refactorises numerically
         try:
-            self.solver.set_operator(self.mat)
+            self.solver.set_csr(sp.csr_matrix((data, *self._pattern), shape=self._shape))
         except petsc().Error as exc:
             raise LinearSolveError(f"{self.solver.description} factorisation failed: {exc}") from exc
 
@@ -163,7 +155,6 @@ class Operator:
         their native memory when garbage-collected (an optimisation that kept one
         adjoint factorisation per evaluation grew by ~34 MB per evaluation)."""
         self.solver.destroy()
-        self.mat.destroy()
 
 
 class _Stall(Exception):
@@ -222,9 +213,8 @@ class _Pose:
         scale = float(np.mean(np.abs(data[self.diag_blocks[:, 0]])))
         data[self.clear] = 0.0
         data[self.fixed_diag] = scale
-        self.op.data[:] = data
         try:
-            self.op.factorise()
+            self.op.factorise(data)
         finally:
             self.times["factorisation"] += time.perf_counter() - start
 

@@ -47,12 +47,12 @@ def test_option_precedence():
 
 
 def test_linear_solver_many_rhs():
-    from mscap.petsc import LinearSolver, aij
+    from mscap.petsc import LinearSolver
 
     n = 200
     a = sp.diags([-np.ones(n - 1), 2.5 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsr()
     solver = LinearSolver("electro_")
-    solver.set_operator(aij(a, spd=True))
+    solver.set_csr(a, spd=True)
     b = np.random.default_rng(0).normal(size=(n, 3))
     x = solver.solve(b)
     np.testing.assert_allclose(a @ x, b, atol=1e-12)
