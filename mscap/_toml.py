@@ -75,6 +75,17 @@ class Table:
                 raise self.error(name, f"must be >= {minimum:g}, got {value!r}")
         return value
 
+    def integers(self, name: str, default: tuple) -> tuple[int, ...]:
+        """Entry ``name`` as a tuple of integers: one integer or an array of them."""
+        self._used.add(name)
+        if name not in self.data:
+            return default
+        value = self.data[name]
+        items = [value] if not isinstance(value, (list, tuple)) else list(value)
+        if not items or not all(isinstance(v, int) and not isinstance(v, bool) for v in items):
+            raise self.error(name, f"expected an integer or an array of integers, got {_describe(value)}")
+        return tuple(items)
+
     def _convert(self, key: str, value: Any, kind: type) -> Any:
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)

@@ -42,6 +42,7 @@ from .loading import loading_for
 from .newton import Operator, solve_pose
 from .objective import DISTANCES, LaplacianSmoothing, capacitance_term, layout_objective
 from .petsc import LinearSolver
+from .readback import design_scene
 from .simulate import PoseResult, Simulation, elastic_setup, simulate
 from .transfer import p1_matrix
 
@@ -65,8 +66,9 @@ def min_pairwise_l1(capacitance_pF: np.ndarray) -> float:
 class Evaluation:
     """J and its parts at one design ``q``.
 
-    ``J = −d + w_b · barrier + w_s · smoothing``; ``d`` (pF²), ``barrier`` and
-    ``smoothing`` (mm²) unweighted; ``capacitance_pF`` ``(n_poses, k)``; ``sim`` holds the
+    ``J = −d + w_b · barrier + w_s · smoothing`` (+ w_b · the plate-area barrier); ``d``
+    (:func:`mscap.objective.capacitance_term`: pF², noise units, or −mm for the read-back
+    bound), ``barrier`` and ``smoothing`` (mm²) unweighted; ``capacitance_pF`` ``(n_poses, k)``; ``sim`` holds the
     moved meshes and each pose's equilibrium with its kept factorisation (for
     :meth:`Design.gradient`, until :meth:`release`); ``newton_iterations`` per pose.
     """
@@ -148,6 +150,9 @@ class Design:
         barrier = objective.barrier.value(outlines)
         if not np.isfinite(barrier):
             raise GeometryError(f"the outlines at this design violate the minimum gap (barrier {barrier})")
+        geometry = objective.geometry.value(outlines)
+        if not np.isfinite(geometry):
+            raise GeometryError("the outlines at this design reach [optimizer] max_plate_area_mm2")
         smoothing = LaplacianSmoothing().value(outlines)
         fine, elastic = self.rest_points(q)
         sim = moved(self.base, fine, elastic)
@@ -167,8 +172,7 @@ class Design:
         sim = replace(sim, poses=tuple(results))
         capacitance = sim.capacitance_pF
         d = capacitance_term(scene).value(capacitance)
-        settings = scene.optimizer
-        J = -d + settings.barrier_weight * barrier + settings.smoothing_weight * smoothing
+        J = -d + geometry
         if not np.isfinite(J):
             raise DesignError(f"J = {J} is not finite (d = {d}, barrier = {barrier}, smoothing = {smoothing})")
         return Evaluation(q, float(J), float(d), float(barrier), float(smoothing), capacitance, sim,
@@ -179,7 +183,7 @@ class Design:
         e = q_or_evaluation if isinstance(q_or_evaluation, Evaluation) else self.evaluate(q_or_evaluation)
         if e.released:
             raise DesignError("this evaluation's factorisations were released; evaluate again")
-        scene, settings = self.scene, self.scene.optimizer
+        scene = self.scene
         objective = layout_objective(scene)
         dJ_dC = -capacitance_term(scene).gradient(e.capacitance_pF)
         g_fine = np.zeros_like(e.sim.mesh.points)
@@ -198,11 +202,10 @@ class Design:
                 grad += self.elastic_weights.T @ g_elastic.reshape(-1, n2, 3)[:, :, :2].sum(axis=0)
         # Geometry terms: outline vertices are fine-mesh vertices.
         outlines = self.deformer.outlines(e.q)
-        _, g_barrier = objective.barrier.value_and_gradient(outlines)
-        _, g_smooth = LaplacianSmoothing().value_and_gradient(outlines)
+        _, g_geometry = objective.geometry.value_and_gradient(outlines)
         g2d = np.zeros((len(self.deformer.rest2d), 2))
-        for chain, gb, gs in zip(self.deformer.outline_vertices, g_barrier, g_smooth):
-            np.add.at(g2d, chain, settings.barrier_weight * gb + settings.smoothing_weight * gs)
+        for chain, g in zip(self.deformer.outline_vertices, g_geometry):
+            np.add.at(g2d, chain, g)
         grad += self.deformer.vjp(g2d)
         if not np.isfinite(grad).all():
             raise DesignError(f"dJ/dq is not finite ({int((~np.isfinite(grad)).sum())} entries)")
@@ -251,6 +254,7 @@ def build_design(scene, *, layout=None, control_spacing_mm: float | None = None,
     """
     if layout is not None:
         scene = replace(scene, layout=layout)
+    scene = design_scene(scene)
     settings = scene.optimizer
     from .deformer import METHODS
 
@@ -260,7 +264,7 @@ def build_design(scene, *, layout=None, control_spacing_mm: float | None = None,
     if settings.distance not in DISTANCES:
         raise SceneError(scene.path, "optimizer.distance", f"unknown value {settings.distance!r}; "
                          f"expected one of {', '.join(DISTANCES)}")
-    for key in ("control_spacing_mm", "first_step_mm", "max_step_mm", "tau_pF2", "tau_noise"):
+    for key in ("control_spacing_mm", "first_step_mm", "max_step_mm", "tau_pF2", "tau_noise", "tau_mm"):
         if not getattr(settings, key) > 0:
             raise SceneError(scene.path, f"optimizer.{key}", f"must be > 0, got {getattr(settings, key)!r}")
     if len(scene.poses) < 2:

@@ -25,6 +25,7 @@ from dataclasses import replace
 from typing import Callable
 
 from .accuracy import estimate_error
+from .readback import ReconstructionBound
 from .farm import TAGS, Stop, farm, release, serve
 from .selection import StartConfig, configurations, select
 from .store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
@@ -45,9 +46,14 @@ def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | N
     try:
         layout = initial_layout(scene, config.k, config.seed, config.init)
         design = build_design(replace(scene, layout=layout))
+        scene = design.scene  # its design poses (mscap.readback.design_scene)
         result = optimize(design, max_iterations=max_iterations)
         record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
                                     time.perf_counter() - start, rank)
+        if scene.design_family is not None:
+            bound = ReconstructionBound(scene.design_family, scene.optimizer.tau_mm)
+            record = replace(record, bound_mm=bound.value(record.final_capacitance_pF),
+                             initial_bound_mm=bound.value(record.initial_capacitance_pF))
         final = result.layout
         del design, result  # the finer mesh's check below should not add to the design's memory
     except Exception as exc:  # a failed start is a result, not a crash of the job
@@ -134,6 +140,8 @@ def _master(scene, path, comm, force, retry_failed, select_configs, max_iteratio
             elapsed = time.perf_counter() - started
             eta = elapsed / done * (total - done)
             metric = f"{rec.metric:.4g} pF" if rec.ok else rec.error.splitlines()[0][:80]
+            if rec.ok and math.isfinite(rec.bound_mm):
+                metric += f", read-back bound {rec.initial_bound_mm:.3g} -> {rec.bound_mm:.3g} mm"
             if rec.ok and math.isfinite(rec.error_estimate):
                 metric += f" (finer mesh: C within {100 * rec.error_estimate:.2g} %)"
             say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "

@@ -48,7 +48,7 @@ from scipy.spatial import cKDTree
 from .contact import barrier, barrier_derivatives
 from .errors import GeometryError, MscapError
 
-__all__ = ["Dissimilarity", "NoiseWeightedDissimilarity", "DISTANCES", "capacitance_term", "SeparationBarrier", "LaplacianSmoothing", "Weighted", "Sum",
+__all__ = ["Dissimilarity", "PlateAreaBarrier", "DISTANCES", "capacitance_term", "SeparationBarrier", "LaplacianSmoothing", "Weighted", "Sum",
            "LayoutObjective", "layout_objective"]
 
 
@@ -107,43 +107,6 @@ class Dissimilarity(_Term):
         w[a, b] = weight / total  # ∂d/∂D_ab: a softmax, summing to 1
         w += w.T
         return float(low - self.tau_pF2 * np.log(total)), 2 * np.einsum("ab,abk->ak", w, diff)
-
-
-@dataclass(frozen=True)
-class NoiseWeightedDissimilarity(_Term):
-    """:class:`Dissimilarity` of capacitances measured in read-out noise: capacitor j's
-    column is divided by its noise standard deviation
-
-        σ_j = sqrt((s C̄_j)² + a²) / √3,
-
-    the std of appendix A's noise (a uniform ±s relative shift and a uniform ±a pF
-    offset) at C̄_j, the mean of C_j over the poses. Distances are then in noise standard
-    deviations (dimensionless), ``tau`` too. Growing every plate scales all differences
-    and σ alike, so, unlike the pF distance, this one rewards plates only for reading
-    the poses apart *relative* to their own size (and to a pF)."""
-
-    tau: float = 0.05
-    relative_shift: float = 0.15
-    additive_pF: float = 2.0
-
-    def __post_init__(self):
-        if not self.tau > 0:
-            raise MscapError(f"[optimizer] tau_noise must be positive, got {self.tau!r}")
-        if not (self.relative_shift > 0 or self.additive_pF > 0):
-            raise MscapError("the noise-weighted distance needs a noise model with relative_shift > 0 "
-                             "or additive_pF > 0")
-
-    def value_and_gradient(self, capacitance_pF: np.ndarray) -> tuple[float, np.ndarray]:
-        """``d`` (noise std², dimensionless) and ``∂d/∂C`` (1/pF) for ``(n_poses, k)`` C."""
-        c = np.asarray(capacitance_pF, dtype=float)
-        n = len(c)
-        mean = c.mean(axis=0)
-        s2 = self.relative_shift**2
-        sigma = np.sqrt((s2 * mean**2 + self.additive_pF**2) / 3.0)
-        d, g_z = Dissimilarity(self.tau).value_and_gradient(c / sigma)
-        # z = C/σ(C̄): ∂d/∂C_bj = g_bj/σ_j − (Σ_a g_aj C_aj)/σ_j² · ∂σ_j/∂C̄_j / n
-        dsigma = s2 * mean / (3.0 * sigma)
-        return d, g_z / sigma - (np.sum(g_z * c, axis=0) / sigma**2 * dsigma / n)[None, :]
 
 
 def _point_edge(p, a, b):
@@ -361,30 +324,86 @@ class LayoutObjective:
 
 
 #: ``[optimizer] distance``: how pose capacitance vectors are compared.
-DISTANCES = ("pF", "noise")
+DISTANCES = ("pF", "noise", "reconstruction")
 
 
 def capacitance_term(scene) -> _Term:
-    """d of the scene: :class:`Dissimilarity` (``distance = "pF"``, ``tau_pF2``) or
-    :class:`NoiseWeightedDissimilarity` (``"noise"``, ``tau_noise``, with the
-    ``[calibration.noise]`` model when the scene has one, else appendix A's)."""
+    """The term d of the scene, maximised (J = −d + ...):
+
+    - ``"pF"``: :class:`Dissimilarity` (``tau_pF2``);
+    - ``"noise"``: :class:`mscap.readback.ProtocolDissimilarity` (``tau_noise``), pairwise
+      distances in the read-out noise of the ``[calibration]`` protocol (tared when it
+      names a reference pose, else raw; appendix A's noise without a calibration);
+    - ``"reconstruction"``: minus :class:`mscap.readback.ReconstructionBound` (``tau_mm``),
+      so d = −bound (mm); needs design poses from the calibration family.
+    """
     settings = scene.optimizer
     if settings.distance == "pF":
         return Dissimilarity(settings.tau_pF2)
     from .calibration import NoiseModel
+    from .readback import ProtocolDissimilarity, ReconstructionBound, design_scene
 
-    noise = scene.calibration.noise if scene.calibration is not None else NoiseModel()
-    return NoiseWeightedDissimilarity(settings.tau_noise, noise.relative_shift, noise.additive_pF)
+    scene = design_scene(scene)
+    if settings.distance == "reconstruction":
+        if scene.design_family is None:
+            from .errors import SceneError
+
+            raise SceneError(scene.path, "optimizer.design_poses",
+                             'distance = "reconstruction" needs poses from the calibration family: '
+                             'set design_poses = "family" or "both"')
+        return -1.0 * ReconstructionBound(scene.design_family, settings.tau_mm)
+    cal = scene.calibration
+    noise = cal.noise if cal is not None else NoiseModel()
+    reference = None
+    if scene.design_family is not None:
+        reference = scene.design_family.reference_row
+    elif cal is not None and cal.reference is not None:
+        reference = [p.name for p in scene.poses].index(cal.reference)
+    return ProtocolDissimilarity(noise, reference, settings.tau_noise)
+
+
+@dataclass(frozen=True)
+class PlateAreaBarrier(_Term):
+    """Barrier on the total plate area (the paper's "limited capacitor area"):
+    b(1 − A/A_max) with the IPC barrier of :mod:`mscap.contact` (d̂ = ``dhat``, relative),
+    zero while A ≤ (1 − d̂) A_max, infinite at A ≥ A_max; A = Σ_j |area of outline j| (mm²)."""
+
+    max_area_mm2: float
+    dhat: float = 0.1
+
+    @staticmethod
+    def areas(outlines) -> np.ndarray:
+        """Signed area (mm²) of each closed outline (shoelace)."""
+        return np.array([0.5 * np.sum(o[:, 0] * np.roll(o[:, 1], -1) - np.roll(o[:, 0], -1) * o[:, 1])
+                         for o in (np.asarray(x, dtype=float) for x in outlines)])
+
+    def value_and_gradient(self, outlines):
+        signed = self.areas(outlines)
+        slack = 1.0 - np.abs(signed).sum() / self.max_area_mm2
+        if slack <= 0:
+            raise GeometryError(f"the plates' total area {np.abs(signed).sum():.6g} mm² reaches "
+                                f"[optimizer] max_plate_area_mm2 = {self.max_area_mm2:g}")
+        value = float(barrier(np.array([slack]), self.dhat)[0])
+        db = barrier_derivatives(np.array([slack]), self.dhat)[0][0] * (-1.0 / self.max_area_mm2)
+        grads = []
+        for o, a in zip(outlines, signed):
+            o = np.asarray(o, dtype=float)
+            d_signed = 0.5 * np.c_[np.roll(o[:, 1], -1) - np.roll(o[:, 1], 1), np.roll(o[:, 0], 1) - np.roll(o[:, 0], -1)]
+            grads.append(db * np.sign(a) * d_signed)
+        return value, tuple(grads)
+
+    def value(self, outlines) -> float:
+        slack = 1.0 - np.abs(self.areas(outlines)).sum() / self.max_area_mm2
+        return float(barrier(np.array([slack]), self.dhat)[0])
 
 
 def layout_objective(scene, dhat_mm: float | None = None) -> LayoutObjective:
-    """J = −d + w_b B + w_s S from a scene's ``[optimizer]`` (``distance``, ``tau_pF2`` or
-    ``tau_noise``, ``barrier_weight``, ``smoothing_weight``) and ``[capacitors]
-    min_gap_mm``."""
+    """J = −d + w_b (B + B_area) + w_s S from a scene's ``[optimizer]`` (``distance``,
+    ``tau_pF2`` / ``tau_noise`` / ``tau_mm``, ``barrier_weight``, ``smoothing_weight``,
+    ``max_plate_area_mm2``) and ``[capacitors] min_gap_mm``."""
     settings = scene.optimizer
     separation = SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm)
-    return LayoutObjective(
-        capacitance=-1.0 * capacitance_term(scene),
-        geometry=settings.barrier_weight * separation
-        + settings.smoothing_weight * LaplacianSmoothing(),
-        barrier=separation)
+    geometry = settings.barrier_weight * separation + settings.smoothing_weight * LaplacianSmoothing()
+    if settings.max_plate_area_mm2 > 0:
+        geometry = geometry + settings.barrier_weight * PlateAreaBarrier(settings.max_plate_area_mm2)
+    return LayoutObjective(capacitance=-1.0 * capacitance_term(scene), geometry=geometry, barrier=separation)

@@ -113,10 +113,16 @@ class ElasticSettings:
 class OptimizerSettings:
     """Design-optimisation settings (scene table ``[optimizer]``; :mod:`mscap.optimize`).
 
-    ``distance`` (``"pF"`` or ``"noise"``: capacitance differences in pF, or in read-out
-    noise standard deviations), ``tau_pF2`` / ``tau_noise`` (the soft minimum's
-    temperature in those units), ``barrier_weight``, ``smoothing_weight``: the objective
-    (:func:`mscap.objective.layout_objective`). ``max_iterations``: accepted L-BFGS steps
+    ``distance`` (``"pF"``, ``"noise"`` or ``"reconstruction"``: capacitance differences in
+    pF, read-out differences in the noise of the calibration's protocol, or the
+    Cramér–Rao bound on the read-back error over the family, :mod:`mscap.readback`),
+    ``tau_pF2`` / ``tau_noise`` / ``tau_mm`` (the soft minimum's or maximum's temperature
+    in those units), ``barrier_weight``, ``smoothing_weight``: the objective
+    (:func:`mscap.objective.layout_objective`). ``design_poses``: ``"listed"`` (the
+    scene's poses), ``"family"`` (a sub-grid of the ``[calibration]`` training family with
+    ``family_grid`` points per parameter, one count for all or one each; default 2, and
+    the reference pose) or ``"both"``. ``max_plate_area_mm2``: a barrier on the total
+    plate area (0: none). ``max_iterations``: accepted L-BFGS steps
     per cascade level; ``cascade_levels``: doublings of the controls after the first
     level converges. ``control_spacing_mm``: arc length between control points on the
     outlines; ``skinning``: ``"bbw"`` or ``"harmonic"`` weights. Convergence of a level:
@@ -130,6 +136,10 @@ class OptimizerSettings:
     distance: str = "pF"
     tau_pF2: float = 1.0
     tau_noise: float = 0.05
+    tau_mm: float = 0.25
+    design_poses: str = "listed"
+    family_grid: tuple = ()
+    max_plate_area_mm2: float = 0.0
     barrier_weight: float = 1.0
     smoothing_weight: float = 1e-3
     max_iterations: int = 100
@@ -179,6 +189,9 @@ class Scene:
     petsc_options: tuple[tuple[str, str], ...]
     source: str
     calibration: CalibrationSettings | None = None
+    #: Set by :func:`mscap.readback.design_scene` when the poses are design poses from the
+    #: calibration family (a :class:`mscap.readback.DesignFamily`).
+    design_family: object = None
 
     @property
     def thickness_mm(self) -> float:
@@ -426,6 +439,9 @@ def _read_dataclass(t: Table | None, cls):
     hints = typing.get_type_hints(cls)
     for field, default in cls().__dict__.items():
         kind = type(default) if default is not None else typing.get_args(hints[field])[0]
+        if kind is tuple:
+            values[field] = t.integers(field, default)
+            continue
         values[field] = t.get(field, kind, default, minimum=0 if kind in (int, float) else None)
     t.finish()
     return cls(**values)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 __all__ = ["StartConfig", "RunSummary", "KSummary", "Selection", "INITS", "MAX_STARTS_PER_K",
-           "run_id", "configurations", "choose_k", "select", "SELECTION_RULE"]
+           "run_id", "configurations", "choose_k", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
 
 #: Initial-layout rules of the multi-start service (see ``mscap.initial``).
 INITS = ("lloyd", "random")
@@ -24,6 +24,9 @@ MAX_STARTS_PER_K = 1000
 #: One-line statement of the k rule, stored beside the choice in ``/selection``.
 SELECTION_RULE = ("chosen k = smallest k with a successful run such that no larger k with a successful "
                   "run has a best metric above (1 + plateau_tol) * m(k)")
+#: The rule when the runs carry a read-back bound (design poses from the calibration family).
+SELECTION_RULE_BOUND = ("best run per k = smallest read-back bound b; chosen k = smallest k with a successful "
+                        "run such that no larger k has a best bound below b(k) / (1 + plateau_tol)")
 
 
 def run_id(k: int, seed: int, init: str) -> str:
@@ -76,6 +79,7 @@ class RunSummary:
     ok: bool
     metric: float
     wall_s: float
+    bound_mm: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -89,6 +93,7 @@ class KSummary:
     best_metric: float | None
     best_run: str | None
     wall_s: float
+    best_bound_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -102,6 +107,7 @@ class Selection:
     plateau_tol: float
     plateau_reached: bool
     runs_total: int
+    by_bound: bool = False
 
 
 def choose_k(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) -> int | None:
@@ -124,22 +130,31 @@ def choose_k(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) ->
 def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[int] = ()) -> Selection:
     """Best run per k (largest metric; ties go to the smallest id) and the chosen k.
 
-    ``k_values`` adds rows for k without any run (e.g. the scene's ``k_min..k_max``).
+    When every successful run carries a finite read-back bound (design poses from the
+    calibration family, :mod:`mscap.readback`), the best run per k is the one with the
+    smallest bound and the plateau rule runs on its precision 1/bound: the smallest k
+    that no larger k beats by more than ``plateau_tol``. ``k_values`` adds rows for k
+    without any run (e.g. the scene's ``k_min..k_max``).
     """
     runs = list(runs)
     ks = sorted(set(k_values) | {r.k for r in runs})
+    good = [r for r in runs if r.ok and math.isfinite(r.metric)]
+    by_bound = bool(good) and all(math.isfinite(r.bound_mm) and r.bound_mm > 0 for r in good)
+    score = (lambda r: 1.0 / r.bound_mm) if by_bound else (lambda r: r.metric)
     per_k = []
     for k in ks:
         mine = [r for r in runs if r.k == k]
-        ok = [r for r in mine if r.ok and math.isfinite(r.metric)]
-        best = min(ok, key=lambda r: (-r.metric, r.id)) if ok else None
+        ok = [r for r in good if r.k == k]
+        best = min(ok, key=lambda r: (-score(r), r.id)) if ok else None
         per_k.append(KSummary(k=k, runs_ok=len(ok), runs_failed=len(mine) - len(ok),
                               best_metric=None if best is None else best.metric,
                               best_run=None if best is None else best.id,
-                              wall_s=float(sum(r.wall_s for r in mine))))
-    chosen = choose_k([s.k for s in per_k], [math.nan if s.best_metric is None else s.best_metric
-                                             for s in per_k], plateau_tol)
+                              wall_s=float(sum(r.wall_s for r in mine)),
+                              best_bound_mm=None if best is None or not by_bound else best.bound_mm))
+    best_of = {s.k: next(r for r in good if r.id == s.best_run) for s in per_k if s.best_run is not None}
+    chosen = choose_k(list(best_of), [score(r) for r in best_of.values()], plateau_tol)
     chosen_run = next((s.best_run for s in per_k if s.k == chosen), None)
     valid = [s.k for s in per_k if s.best_run is not None]
     return Selection(per_k=tuple(per_k), chosen_k=chosen, chosen_run=chosen_run, plateau_tol=plateau_tol,
-                     plateau_reached=chosen is not None and chosen < max(valid), runs_total=len(runs))
+                     plateau_reached=chosen is not None and chosen < max(valid), runs_total=len(runs),
+                     by_bound=by_bound)

@@ -26,7 +26,7 @@ from .design import min_pairwise_l1
 from .errors import MscapError
 from .optimize import HISTORY_FIELDS
 from .scene import MultistartSettings
-from .selection import RunSummary, Selection, select, SELECTION_RULE, run_id
+from .selection import SELECTION_RULE_BOUND, RunSummary, Selection, select, SELECTION_RULE, run_id
 
 __all__ = ["StoreError", "RunRecord", "FORMAT", "SCHEMA_VERSION", "ROOT_ATTRS", "RUN_ATTRS",
            "RUN_DATASETS", "HISTORY_COLUMNS", "SELECTION_ITEMS", "TEMP_PREFIX", "open_store", "create_store", "read_store",
@@ -72,6 +72,9 @@ RUN_ATTRS = {
                                 "mesh one level finer (mscap.accuracy; NaN if not checked)"),
     "finer_metric_pF": ("float", "metric_pF of the final design on that finer mesh (NaN if not checked)"),
     "error_estimate_wall_s": ("float", "wall time of that check (s), not part of wall_s (NaN if not checked)"),
+    "bound_mm": ("float", "final read-back bound: soft max over the design family's grid of the Cramér–Rao "
+                          "bound on the RMS per-vertex error (mm, mscap.readback; NaN without a design family)"),
+    "initial_bound_mm": ("float", "the same for the initial layout (mm; NaN without a design family)"),
 }
 
 #: Datasets of a run group (ragged outlines: ``points[offsets[j]:offsets[j+1]]`` is outline j).
@@ -98,6 +101,7 @@ SELECTION_ITEMS = {
     "runs_ok": ("dataset int64 (n_k,)", "successful runs per k"),
     "runs_failed": ("dataset int64 (n_k,)", "failed runs per k"),
     "best_metric_pF": ("dataset float64 (n_k,)", "best run's metric per k (NaN if none succeeded)"),
+    "best_bound_mm": ("dataset float64 (n_k,)", "best run's read-back bound per k (NaN without a design family)"),
     "best_run": ("dataset str (n_k,)", 'id of the best run per k ("" if none)'),
     "wall_s": ("dataset float64 (n_k,)", "summed wall time of the runs per k (s)"),
     "chosen_k": ("attribute int", "the chosen k (-1 if no run succeeded)"),
@@ -158,6 +162,8 @@ class RunRecord:
     history: dict = field(default_factory=_empty_history)
     finer_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     error_estimate_wall_s: float = math.nan
+    bound_mm: float = math.nan
+    initial_bound_mm: float = math.nan
 
     @property
     def id(self) -> str:
@@ -358,7 +364,8 @@ def write_run(store: h5py.File, record: RunRecord) -> str:
               "error": record.error, "reason": record.reason, "wall_s": float(record.wall_s),
               "iterations": int(record.iterations), "rank": int(record.rank), "metric_pF": record.metric,
               "error_estimate": float(record.error_estimate), "finer_metric_pF": float(record.finer_metric_pF),
-              "error_estimate_wall_s": float(record.error_estimate_wall_s)}
+              "error_estimate_wall_s": float(record.error_estimate_wall_s), "bound_mm": float(record.bound_mm),
+              "initial_bound_mm": float(record.initial_bound_mm)}
     assert set(values) == set(RUN_ATTRS)
     g.attrs.update(values)
     for stage, outlines in (("initial", record.initial_outlines), ("final", record.final_outlines)):
@@ -405,7 +412,9 @@ def read_run(store: h5py.File, rid: str) -> RunRecord:
                      # schema 1 files have no check: NaN
                      finer_capacitance_pF=g["finer_capacitance_pF"][()] if "finer_capacitance_pF" in g
                      else np.zeros((0, int(a["k"]))),
-                     error_estimate_wall_s=float(a.get("error_estimate_wall_s", math.nan)))
+                     error_estimate_wall_s=float(a.get("error_estimate_wall_s", math.nan)),
+                     bound_mm=float(a.get("bound_mm", math.nan)),
+                     initial_bound_mm=float(a.get("initial_bound_mm", math.nan)))
 
 
 def run_summaries(store: h5py.File) -> list[RunSummary]:
@@ -414,7 +423,7 @@ def run_summaries(store: h5py.File) -> list[RunSummary]:
     for rid in sorted(finished_ids(store)):
         a = store["runs"][rid].attrs
         out.append(RunSummary(id=rid, k=int(a["k"]), ok=a["status"] == "ok", metric=float(a["metric_pF"]),
-                              wall_s=float(a["wall_s"])))
+                              wall_s=float(a["wall_s"]), bound_mm=float(a.get("bound_mm", math.nan))))
     return out
 
 
@@ -443,12 +452,14 @@ def write_selection(store: h5py.File, selection: Selection) -> None:
     g.create_dataset("runs_failed", data=np.array([s.runs_failed for s in per_k], dtype=np.int64))
     g.create_dataset("best_metric_pF", data=np.array([math.nan if s.best_metric is None else s.best_metric
                                                       for s in per_k], dtype=float))
+    g.create_dataset("best_bound_mm", data=np.array([math.nan if s.best_bound_mm is None else s.best_bound_mm
+                                                     for s in per_k], dtype=float))
     g.create_dataset("best_run", data=np.array([s.best_run or "" for s in per_k], dtype=object), dtype=_STR)
     g.create_dataset("wall_s", data=np.array([s.wall_s for s in per_k], dtype=float))
     g.attrs.update({"chosen_k": -1 if selection.chosen_k is None else int(selection.chosen_k),
                     "chosen_run": selection.chosen_run or "", "plateau_tol": float(selection.plateau_tol),
                     "plateau_reached": int(selection.plateau_reached), "runs_total": int(selection.runs_total),
-                    "rule": SELECTION_RULE})
+                    "rule": SELECTION_RULE_BOUND if selection.by_bound else SELECTION_RULE})
     assert set(g) | set(g.attrs) == set(SELECTION_ITEMS)
     if "selection" in store:
         del store["selection"]

@@ -45,8 +45,19 @@ SCENES = {
     "glue": glue,
     "stiff": lambda: stretch(1.2, 0.499),
     "extreme": lambda: stretch(2.0),
-    # d in read-out noise units (objective.NoiseWeightedDissimilarity)
-    "glue_noise": lambda: glue() | {"optimizer": {"distance": "noise", "tau_noise": 0.01}},
+    # d in read-out noise units of read-outs tared against the rest pose
+    # (readback.ProtocolDissimilarity; the calibration section names the protocol)
+    "glue_noise": lambda: glue() | {"optimizer": {"distance": "noise", "tau_noise": 0.01},
+                                    "calibration": {"pose": "bent", "reference": "rest",
+                                                    "training": {"radius_mm": [15.0, 30.0, 4]},
+                                                    "sequence": {"radius_mm": [18.0, 28.0]}}},
+    # the read-back bound over a family of three bends, tared against the rest pose, with
+    # the plate-area barrier active (the plate is ~50 mm², the budget 54 mm²)
+    "glue_readback": lambda: glue() | {
+        "optimizer": {"distance": "reconstruction", "design_poses": "family", "family_grid": 3,
+                      "tau_mm": 0.05, "max_plate_area_mm2": 54.0},
+        "calibration": {"pose": "bent", "reference": "rest", "training": {"radius_mm": [15.0, 30.0, 4]},
+                        "sequence": {"radius_mm": [18.0, 28.0]}}},
 }
 
 
@@ -94,7 +105,11 @@ def test_whole_objective_taylor_and_central_differences(design):
     steps = 0.02 / 2.0 ** np.arange(5)
     remainders = np.array([abs(J(h) - base.J - h * slope) for h in steps])
     rates = np.log2(remainders[:-1] / remainders[1:])
-    assert remainders[-1] < 0.05 * abs(steps[-1] * slope), (name, remainders, slope)
+    # The noise distance saturates once the poses differ by many noise widths (a pose pair's
+    # z² tends to its bound C_ref²/Var), so its J is more curved than its slope: the
+    # remainder at the smallest step is ~9 % of the first-order change there, at rate 2.
+    relative = 0.15 if name == "glue_noise" else 0.05
+    assert remainders[-1] < relative * abs(steps[-1] * slope), (name, remainders, slope)
     np.testing.assert_allclose(rates, 2.0, atol=0.2, err_msg=f"{name}: {remainders}")
     h = 2e-5
     central = (J(h) - J(-h)) / (2 * h)

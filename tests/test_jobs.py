@@ -48,8 +48,9 @@ def test_quick_scene_takes_one_optimisation_step(name):
     from mscap.layout import check_layout
     from mscap.optimize import optimize
 
-    scene = load_scene(JOBS / f"{name}.toml")
-    result = optimize(build_design(scene), max_iterations=1, cascade_levels=0)
+    design = build_design(load_scene(JOBS / f"{name}.toml"))
+    scene = design.scene  # its design poses: the listed ones, or a sub-grid of the calibration family
+    result = optimize(design, max_iterations=1, cascade_levels=0)
     events = [r.event for r in result.history]
     assert events[0] == "start" and events.count("step") == 1, events
     assert result.history[1].J < result.history[0].J

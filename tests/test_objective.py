@@ -87,28 +87,6 @@ def test_dissimilarity_gradient():
     assert error < 1e-6
 
 
-def test_noise_weighted_dissimilarity_is_scale_free_and_its_gradient_is_exact():
-    from mscap.objective import NoiseWeightedDissimilarity
-
-    rng = np.random.default_rng(5)
-    c = 57 + 6 * rng.standard_normal((7, 3))
-    term = NoiseWeightedDissimilarity(tau=0.05, relative_shift=0.15, additive_pF=2.0)
-    # by hand: columns divided by the uniform noise's std at their mean over the poses
-    sigma = np.sqrt((0.15 * c.mean(axis=0)) ** 2 + 4.0) / np.sqrt(3)
-    assert term.value(c) == pytest.approx(Dissimilarity(0.05).value(c / sigma), rel=1e-12)
-    # purely multiplicative noise: growing every plate by any factor changes nothing
-    relative = NoiseWeightedDissimilarity(tau=0.05, relative_shift=0.15, additive_pF=0.0)
-    assert relative.value(7.3 * c) == pytest.approx(relative.value(c), rel=1e-12)
-    # with the pF floor, bigger plates still help a little, never more than the pF distance
-    assert term.value(c) < term.value(4 * c) < 16 * term.value(c)
-    for t in (term, relative, NoiseWeightedDissimilarity(tau=1.0, relative_shift=0.0, additive_pF=2.0)):
-        rates, error = check_gradient(t, c, rng, 1e-1, geometric=False)
-        assert np.all(np.abs(rates - 2) < 0.2), rates
-        assert error < 1e-6
-    with pytest.raises(MscapError, match="relative_shift > 0 or additive_pF > 0"):
-        NoiseWeightedDissimilarity(relative_shift=0.0, additive_pF=0.0)
-
-
 # --- separation barrier ----------------------------------------------------------------
 
 def pair_of_squares(separation, size=4.0):

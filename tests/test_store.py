@@ -373,3 +373,28 @@ def test_read_design_takes_the_chosen_or_named_run(tmp_path, scene):
             read_design(store, "k4_s0003_random")
         with pytest.raises(StoreError, match="no run 'k9'"):
             read_design(store, "k9")
+
+
+def test_read_back_bounds_round_trip_and_decide_the_selection(tmp_path, scene, capsys):
+    """Runs designed for read-back store their bound; the best run per k is then the one
+    with the smallest bound (not the largest min L1), and inspect shows the bounds."""
+    path = tmp_path / "r.h5"
+    runs = {(2, 2000): (1.0, 0.80), (2, 2001): (1.5, 0.90), (3, 3000): (2.0, 0.50), (4, 4000): (2.5, 0.49)}
+    with open_store(path, scene, mpi_size=2) as store:
+        for (k, seed), (m, bound) in runs.items():
+            c = np.zeros((3, k))
+            c[:, 0] = [0.0, m, 2 * m + 1]
+            record = RunRecord(**{**synthetic_record(k, seed).__dict__, "final_capacitance_pF": c,
+                                  "bound_mm": bound, "initial_bound_mm": 2 * bound})
+            write_run(store, record)
+            back = read_run(store, record.id)
+            assert back.bound_mm == bound and back.initial_bound_mm == 2 * bound
+        write_selection(store, store_selection(store))
+        g = store["selection"]
+        np.testing.assert_array_equal(g["best_bound_mm"][()], [0.80, 0.50, 0.49])
+        assert g.attrs["chosen_run"] == "k3_s3000_random" and "read-back bound" in g.attrs["rule"]
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "best bound (mm)" in out and "k2_s2000_random" in out and "k2_s2001_random" not in out
+    assert main(["inspect", str(path), "--runs"]) == 0
+    assert "1.6 → 0.8" in capsys.readouterr().out

@@ -39,10 +39,12 @@ def run(args) -> int:
     from ..initial import initial_layout
     from ..optimize import HISTORY_FIELDS, optimize
 
-    scene = load_scene_for(args)
+    from ..readback import ReconstructionBound, design_scene
+
+    scene = design_scene(load_scene_for(args))  # the design poses: listed, or from the family
     say = progress_printer(args.quiet) or (lambda message: None)
     layout = initial_layout(scene, args.k, args.seed, args.init)
-    say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(scene.poses)} poses")
+    say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(scene.poses)} design poses")
     design = build_design(replace(scene, layout=layout))
     result = optimize(design, progress=say, max_iterations=args.max_iterations, cascade_levels=args.cascade)
 
@@ -69,6 +71,11 @@ def run(args) -> int:
                "initial_min_l1_pF": result.initial.min_l1_pF, "final_min_l1_pF": result.evaluation.min_l1_pF,
                "initial_J": result.initial.J, "final_J": result.evaluation.J,
                "remeshes": sum(r.event == "remesh" for r in result.history),
+               **({} if scene.design_family is None else {
+                   "initial_bound_mm": ReconstructionBound(scene.design_family, scene.optimizer.tau_mm).value(
+                       result.initial.capacitance_pF),
+                   "final_bound_mm": ReconstructionBound(scene.design_family, scene.optimizer.tau_mm).value(
+                       result.evaluation.capacitance_pF)}),
                "poses": poses,
                "capacitance_pF": {name: row.tolist()
                                   for name, row in zip(poses, result.evaluation.capacitance_pF)},
@@ -81,7 +88,9 @@ def run(args) -> int:
                result.evaluation.capacitance_pF, poses)
         files.append("layout.png")
     print(f"{scene.name}: {result.iterations} iterations ({result.reason}) in {result.time_s:.1f} s; "
-          f"min pairwise L1 {result.initial.min_l1_pF:.4g} → {result.evaluation.min_l1_pF:.4g} pF")
+          f"min pairwise L1 {result.initial.min_l1_pF:.4g} → {result.evaluation.min_l1_pF:.4g} pF"
+          + (f"; read-back bound {summary['initial_bound_mm']:.4g} → {summary['final_bound_mm']:.4g} mm"
+             if "final_bound_mm" in summary else ""))
     print("wrote " + ", ".join(str(out / f) for f in files))
     return 0
 
