@@ -66,9 +66,30 @@ def scene_row(name: str, scene_file: Path, out: Path, seeds: str | None, tag: st
             "beats_all": all(chosen["mean_error"] < d["mean_error"] for d in rest)}
 
 
+def markdown(table: Path) -> str:
+    """docs/readback.csv as the Markdown table of docs/results.md."""
+    lines = ["| scene | replica (seeds) | run + calibrate | chosen | bound, initial → final (mm) | "
+             "chosen | its initial | scene layout | best other start | no signal | beats all |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    with open(table) as f:
+        for r in csv.DictReader(f):
+            seeds = r["seeds"]
+            if seeds == "scene":  # the scene's own seeds, or a copy's (wrist_quick_seed1.toml)
+                stem = Path(r["objective"]).stem
+                seeds = f"multistart seed {stem.rsplit('_seed', 1)[1]}" if "_seed" in stem else "multistart seed 0"
+            lines.append(f"| {r['scene']} | {r['tag']} ({seeds}) | {float(r['run_s']) / 60:.1f} + "
+                         f"{float(r['calibrate_s']) / 60:.1f} min | {r['chosen_run']} | {r['initial_bound_mm']} → "
+                         f"{r['bound_mm']} | **{float(r['error_chosen_mm']):.3g}** ± {float(r['error_chosen_std_mm']):.2g} | "
+                         f"{float(r['error_own_initial_mm']):.3g} | {float(r['error_scene_mm']):.3g} | "
+                         f"{float(r['error_best_other_mm']):.3g} | {float(r['error_no_signal_mm']):.3g} | "
+                         f"{'yes' if r['beats_all'] == 'True' else '**no**'} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("scenes", nargs="+", help="scene names (wrist, pneumatic, joystick, glove)")
+    parser.add_argument("scenes", nargs="*", help="scene names (wrist, pneumatic, joystick, glove)")
+    parser.add_argument("--table", action="store_true", help="print docs/readback.csv as Markdown and stop")
     parser.add_argument("--seeds", help="start indices A:B within each k (replicas: disjoint ranges)")
     parser.add_argument("--tag", default="r1", help="names this replica in the files and the table")
     parser.add_argument("--scene-file", help="scene file to run instead of jobs/<scene>_quick.toml")
@@ -78,6 +99,9 @@ def main() -> None:
     parser.add_argument("--out", default="out/readback")
     parser.add_argument("--csv", default=str(ROOT / "docs" / "readback.csv"))
     args = parser.parse_args()
+    if args.table or not args.scenes:
+        print(markdown(Path(args.csv)))
+        return
     out = (ROOT / args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     for name in args.scenes:
@@ -89,6 +113,8 @@ def main() -> None:
             scene_file = out / f"{scene_file.stem}_seed{args.multistart_seed}.toml"
             scene_file.write_text(text.replace("\n[multistart]\n", f"\n[multistart]\nseed = {args.multistart_seed}\n"))
         row = scene_row(name, scene_file.resolve(), out, args.seeds, args.tag)
+        if args.multistart_seed is not None:
+            row["seeds"] = f"multistart seed {args.multistart_seed}"
         table = Path(args.csv)
         new = not table.exists()
         with open(table, "a", newline="") as f:  # one row per scene as it finishes

@@ -48,6 +48,7 @@ class Panel:
     runs_ok: int
     runs_failed: int
     chosen: bool
+    bound_mm: float | None = None  # the read-back bound, when the selection uses it
 
     @property
     def empty(self) -> bool:
@@ -57,7 +58,8 @@ class Panel:
     def title(self) -> str:
         if self.empty:
             return f"k = {self.k}, no successful run"
-        return f"k = {self.k}, min L1 = {self.metric:.4g} pF" + (" (chosen)" if self.chosen else "")
+        score = f"bound {self.bound_mm:.3g} mm" if self.bound_mm is not None else f"min L1 = {self.metric:.4g} pF"
+        return f"k = {self.k}, {score}" + (" (chosen)" if self.chosen else "")
 
     @property
     def note(self) -> str:
@@ -73,7 +75,8 @@ def panels(selection) -> list[Panel]:
     """One ``Panel`` per k of a ``mscap.selection.Selection`` (ascending k); exactly the
     chosen k (if any) is flagged."""
     return [Panel(k=s.k, run_id=s.best_run, metric=s.best_metric, runs_ok=s.runs_ok,
-                  runs_failed=s.runs_failed, chosen=s.k == selection.chosen_k and s.best_run is not None)
+                  runs_failed=s.runs_failed, chosen=s.k == selection.chosen_k and s.best_run is not None,
+                  bound_mm=s.best_bound_mm)
             for s in selection.per_k]
 
 
@@ -119,13 +122,16 @@ def _frame(ax, colour, width) -> None:
 
 def _metric_panel(ax, selection, items: list[Panel]) -> None:
     ok = [p for p in items if not p.empty]
+    bound = selection.by_bound  # lower is better: the band reaches down to b/(1 + tol)
+    value = (lambda p: p.bound_mm) if bound else (lambda p: p.metric)
     if ok:
-        ax.plot([p.k for p in ok], [p.metric for p in ok], "o-", color="0.2", ms=4, lw=1)
+        ax.plot([p.k for p in ok], [value(p) for p in ok], "o-", color="0.2", ms=4, lw=1)
     chosen = next((p for p in items if p.chosen), None)
     if chosen is not None:
-        m, tol = chosen.metric, selection.plateau_tol
-        ax.axhspan(m, (1 + tol) * m, color=CHOSEN_COLOUR, alpha=0.15, lw=0,
-                   label=f"m(k={chosen.k}) … (1 + {tol:g})·m")
+        m, tol = value(chosen), selection.plateau_tol
+        low, high, label = ((m / (1 + tol), m, f"b(k={chosen.k})/(1 + {tol:g}) … b") if bound
+                            else (m, (1 + tol) * m, f"m(k={chosen.k}) … (1 + {tol:g})·m"))
+        ax.axhspan(low, high, color=CHOSEN_COLOUR, alpha=0.15, lw=0, label=label)
         ax.axhline(m, color=CHOSEN_COLOUR, lw=0.8, ls="--")
         ax.plot([chosen.k], [m], "o", color=CHOSEN_COLOUR, ms=8, mfc="none", mew=2)
         ax.legend(fontsize=7, loc="best")
@@ -137,8 +143,9 @@ def _metric_panel(ax, selection, items: list[Panel]) -> None:
     if items:
         ax.set_xlim(items[0].k - 0.5, items[-1].k + 0.5)
     ax.set_xlabel("k")
-    ax.set_ylabel("best min L1 (pF)")
-    ax.set_title("best metric per k" + ("" if chosen is not None else " (no k chosen)"), fontsize=9)
+    ax.set_ylabel("best read-back bound (mm)" if bound else "best min L1 (pF)")
+    ax.set_title(("best bound per k" if bound else "best metric per k")
+                 + ("" if chosen is not None else " (no k chosen)"), fontsize=9)
     ax.grid(alpha=0.3)
 
 
