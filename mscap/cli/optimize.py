@@ -125,7 +125,11 @@ def figure(path: Path, scene, before, after, c_before: np.ndarray, c_after: np.n
         for j in range(k):
             ax.bar(np.arange(n) + (j - 0.5 * (k - 1)) * width, delta[:, j], width, color=colours(j % 10),
                    label=f"C{j}")
-        ax.set_xticks(np.arange(n), poses, rotation=20, fontsize=8)
+        if n > 10 or max(len(p) for p in poses) > 24:  # family grid poses: numbered, named in summary.json
+            ax.set_xticks(np.arange(n), [str(i) for i in range(n)], fontsize=7)
+            ax.set_xlabel("design pose (the order of summary.json \"poses\")", fontsize=8)
+        else:
+            ax.set_xticks(np.arange(n), poses, rotation=20, fontsize=8)
         ax.axhline(0, color="0.5", lw=0.5)
         l1 = min_pairwise_l1(caps)
         ax.set_title(f"{title}: C − mean over poses (min pairwise L1 {l1:.3g} pF)", fontsize=9)
