@@ -241,3 +241,21 @@ def test_both_keeps_the_listed_poses_and_adds_the_new_grid_poses():
     assert fam.reference_row == 0
     corners = {names[fam.rows[i]] for i in (0, 2, 6, 8)}
     assert corners == {"extension_radial", "extension_ulnar", "flexion_radial", "flexion_ulnar"}
+
+
+def test_a_poke_family_reconstructs_its_parameters():
+    # A non-glue template: the target is the parameter itself, so G = 1 and the bound of a
+    # perfectly read parameter is its Cramér–Rao standard deviation in mm of depth.
+    from mscap.calibration import CalibrationSettings
+
+    scene = quick("poking")
+    template, rest = scene.poses[1], scene.poses[0]
+    depths = np.linspace(5.0, 13.0, 5)[:, None]
+    cal = CalibrationSettings(pose=template.name, parameters=("depth_mm",), training=depths, sequence=depths,
+                              in_range=np.ones(5, bool), target="parameters", reference=rest.name)
+    opt = dataclasses.replace(scene.optimizer, distance="reconstruction", design_poses="family", family_grid=(3,))
+    design = design_scene(dataclasses.replace(scene, calibration=cal, optimizer=opt))
+    assert [p.name for p in design.poses] == [rest.name, "grid[depth_mm=5]", "grid[depth_mm=9]", "grid[depth_mm=13]"]
+    assert [p.depth_mm for p in design.poses[1:]] == [5.0, 9.0, 13.0]
+    np.testing.assert_allclose(design.design_family.sensitivity, 1.0)
+    assert design.design_family.prior[0] == pytest.approx(12 / 8.0**2)
