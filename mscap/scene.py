@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import tomllib
 import typing
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -122,9 +122,10 @@ class OptimizerSettings:
     scene's poses), ``"family"`` (a sub-grid of the ``[calibration]`` training family with
     ``family_grid`` points per parameter, one count for all or one each; default 2, and
     the reference pose) or ``"both"``. ``max_plate_area_mm2``: a barrier on the total
-    plate area (0: none). ``max_iterations``: accepted L-BFGS steps
-    per cascade level; ``cascade_levels``: doublings of the controls after the first
-    level converges. ``control_spacing_mm``: arc length between control points on the
+    plate area (0: none). A scene with a ``[calibration]`` that names no ``distance``
+    gets ``"reconstruction"`` on ``"family"`` (:func:`_objective_defaults`).
+    ``max_iterations``: accepted L-BFGS steps per cascade level; ``cascade_levels``:
+    doublings of the controls after the first level converges. ``control_spacing_mm``: arc length between control points on the
     outlines; ``skinning``: ``"bbw"`` or ``"harmonic"`` weights. Convergence of a level:
     J falls by less than ``relative_tolerance`` · max(|J|, 1) in a step, or ‖dJ/dq‖ drops
     below ``gradient_tolerance`` times its value at the level's start. Steps:
@@ -255,6 +256,7 @@ def load_scene(path: str | Path) -> Scene:
                          f"k_min = {multistart.k_min} exceeds k_max = {multistart.k_max}")
     petsc = _read_petsc(root.table("petsc", required=False))
     calibration = read_calibration(root.table("calibration", required=False), poses)
+    optimizer = _objective_defaults(optimizer, data.get("optimizer", {}), calibration)
     root.finish()
     sheet.setflags(write=False)
     return Scene(path=path, name=name, description=description, sheet_outline_mm=sheet,
@@ -430,6 +432,18 @@ def _read_poses(root: Table, objects: dict) -> tuple:
             raise t.error("kind", f"unknown pose kind {kind!r}; expected one of {', '.join(POSE_KINDS)}")
         poses.append(read_pose(t, objects))
     return tuple(poses)
+
+
+def _objective_defaults(optimizer: OptimizerSettings, given: dict, calibration) -> OptimizerSettings:
+    """A scene with a ``[calibration]`` designs for read-back unless its ``[optimizer]``
+    says otherwise: ``distance = "reconstruction"`` on ``design_poses = "family"``
+    (docs/results.md, "Designing for read-back", measured it against the paper's pF
+    objective on every calibrated scene). Without one, the paper's ``"pF"`` on the
+    listed poses."""
+    if calibration is None or "distance" in given or given.get("design_poses") == "listed":
+        return optimizer
+    return replace(optimizer, distance="reconstruction",
+                   design_poses=given.get("design_poses", "family"))
 
 
 def _read_dataclass(t: Table | None, cls):

@@ -259,3 +259,16 @@ def test_a_poke_family_reconstructs_its_parameters():
     assert [p.depth_mm for p in design.poses[1:]] == [5.0, 9.0, 13.0]
     np.testing.assert_allclose(design.design_family.sensitivity, 1.0)
     assert design.design_family.prior[0] == pytest.approx(12 / 8.0**2)
+
+
+def test_a_calibrated_scene_designs_for_read_back_by_default(tmp_path):
+    text = open("jobs/wrist_quick.toml").read()
+    bare = text.replace('distance = "reconstruction"\n', "").replace('design_poses = "family"\n', "")
+    (tmp_path / "bare.toml").write_text(bare)
+    opt = load_scene(tmp_path / "bare.toml").optimizer
+    assert (opt.distance, opt.design_poses) == ("reconstruction", "family")
+    (tmp_path / "paper.toml").write_text(bare.replace("[optimizer]\n", '[optimizer]\ndistance = "pF"\n'))
+    opt = load_scene(tmp_path / "paper.toml").optimizer
+    assert (opt.distance, opt.design_poses) == ("pF", "listed")
+    # without a [calibration] section the paper's objective stays the default
+    assert quick("poking").optimizer.distance == "pF"
