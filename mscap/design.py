@@ -68,9 +68,10 @@ class Evaluation:
 
     ``J = −d + w_b · barrier + w_s · smoothing`` (+ w_b · the plate-area barrier); ``d``
     (:func:`mscap.objective.capacitance_term`: pF², noise units, or −mm for the read-back
-    bound), ``barrier`` and ``smoothing`` (mm²) unweighted; ``capacitance_pF`` ``(n_poses, k)``; ``sim`` holds the
-    moved meshes and each pose's equilibrium with its kept factorisation (for
-    :meth:`Design.gradient`, until :meth:`release`); ``newton_iterations`` per pose.
+    bound), ``barrier`` and ``smoothing`` (mm²) unweighted; ``capacitance_pF``
+    ``(n_poses, k)`` over the design poses; ``sim`` holds the moved meshes and each
+    pose's equilibrium with its kept factorisation (for :meth:`Design.gradient`, until
+    :meth:`release`); ``newton_iterations`` per pose.
     """
 
     q: np.ndarray
