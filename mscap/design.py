@@ -151,8 +151,8 @@ class Design:
         barrier = objective.barrier.value(outlines)
         if not np.isfinite(barrier):
             raise GeometryError(f"the outlines at this design violate the minimum gap (barrier {barrier})")
-        geometry = objective.geometry.value(outlines)
-        if not np.isfinite(geometry):
+        area = 0.0 if objective.area is None else objective.area.value(outlines)
+        if not np.isfinite(area):
             raise GeometryError("the outlines at this design reach [optimizer] max_plate_area_mm2")
         smoothing = LaplacianSmoothing().value(outlines)
         fine, elastic = self.rest_points(q)
@@ -173,7 +173,8 @@ class Design:
         sim = replace(sim, poses=tuple(results))
         capacitance = sim.capacitance_pF
         d = capacitance_term(scene).value(capacitance)
-        J = -d + geometry
+        settings = scene.optimizer
+        J = -d + settings.barrier_weight * (barrier + area) + settings.smoothing_weight * smoothing
         if not np.isfinite(J):
             raise DesignError(f"J = {J} is not finite (d = {d}, barrier = {barrier}, smoothing = {smoothing})")
         return Evaluation(q, float(J), float(d), float(barrier), float(smoothing), capacitance, sim,

@@ -48,8 +48,17 @@ from scipy.spatial import cKDTree
 from .contact import barrier, barrier_derivatives
 from .errors import GeometryError, MscapError
 
-__all__ = ["Dissimilarity", "PlateAreaBarrier", "DISTANCES", "capacitance_term", "SeparationBarrier", "LaplacianSmoothing", "Weighted", "Sum",
+__all__ = ["soft_min", "Dissimilarity", "PlateAreaBarrier", "DISTANCES", "capacitance_term", "SeparationBarrier", "LaplacianSmoothing", "Weighted", "Sum",
            "LayoutObjective", "layout_objective"]
+
+
+def soft_min(values: np.ndarray, tau: float) -> tuple[float, np.ndarray]:
+    """−τ log Σ exp(−v/τ) (≤ min v) and its gradient (a softmax summing to 1), evaluated
+    about the minimum: no overflow or underflow at any v/τ."""
+    low = values.min()
+    weight = np.exp(-(values - low) / tau)  # in (0, 1], the minimum gives 1
+    total = weight.sum()
+    return float(low - tau * np.log(total)), weight / total
 
 
 def _scaled(g, w: float):
@@ -100,13 +109,11 @@ class Dissimilarity(_Term):
         dist2 = np.einsum("abk,abk->ab", diff, diff)
         a, b = np.triu_indices(len(c), 1)
         pair = dist2[a, b]
-        low = pair.min()
-        weight = np.exp(-(pair - low) / self.tau_pF2)  # in (0, 1], the minimum gives 1
-        total = weight.sum()
+        value, weight = soft_min(pair, self.tau_pF2)
         w = np.zeros_like(dist2)
-        w[a, b] = weight / total  # ∂d/∂D_ab: a softmax, summing to 1
+        w[a, b] = weight  # ∂d/∂D_ab: a softmax, summing to 1
         w += w.T
-        return float(low - self.tau_pF2 * np.log(total)), 2 * np.einsum("ab,abk->ak", w, diff)
+        return value, 2 * np.einsum("ab,abk->ak", w, diff)
 
 
 def _point_edge(p, a, b):
@@ -315,6 +322,7 @@ class LayoutObjective:
     capacitance: _Term
     geometry: _Term
     barrier: SeparationBarrier
+    area: PlateAreaBarrier | None = None
 
     def value(self, capacitance_pF: np.ndarray, outlines) -> float:
         return self.capacitance.value(capacitance_pF) + self.geometry.value(outlines)
@@ -404,6 +412,8 @@ def layout_objective(scene, dhat_mm: float | None = None) -> LayoutObjective:
     settings = scene.optimizer
     separation = SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm)
     geometry = settings.barrier_weight * separation + settings.smoothing_weight * LaplacianSmoothing()
-    if settings.max_plate_area_mm2 > 0:
-        geometry = geometry + settings.barrier_weight * PlateAreaBarrier(settings.max_plate_area_mm2)
-    return LayoutObjective(capacitance=-1.0 * capacitance_term(scene), geometry=geometry, barrier=separation)
+    area = PlateAreaBarrier(settings.max_plate_area_mm2) if settings.max_plate_area_mm2 > 0 else None
+    if area is not None:
+        geometry = geometry + settings.barrier_weight * area
+    return LayoutObjective(capacitance=-1.0 * capacitance_term(scene), geometry=geometry, barrier=separation,
+                           area=area)

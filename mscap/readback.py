@@ -39,10 +39,10 @@ import numpy as np
 
 from .calibration import NoiseModel, family_poses
 from .errors import SceneError
-from .objective import _Term
+from .objective import _Term, soft_min
 
 __all__ = ["DESIGN_POSES", "DesignFamily", "design_family", "design_scene", "ProtocolDissimilarity",
-           "ReconstructionBound", "reading_variance", "difference_variance", "grid_pose_name"]
+           "ReconstructionBound", "reading_variance", "difference_variance", "grid_pose_name", "grid_derivatives"]
 
 #: ``[optimizer] design_poses``: the scene's listed poses, a sub-grid of the calibration
 #: family (with the reference pose), or both.
@@ -125,6 +125,18 @@ def _difference_matrix(values: np.ndarray) -> np.ndarray:
     return d
 
 
+def grid_derivatives(axes) -> np.ndarray:
+    """``(p, n, n)`` difference quotients along each axis of the product grid of ``axes``
+    (``itertools.product`` order): Kronecker products of the 1-D operators."""
+    out = []
+    for i, axis in enumerate(axes):
+        m = np.ones((1, 1))
+        for j, other in enumerate(axes):
+            m = np.kron(m, _difference_matrix(axis) if j == i else np.eye(len(other)))
+        out.append(m)
+    return np.array(out)
+
+
 def _counts(scene, n_parameters: int) -> tuple[int, ...]:
     counts = scene.optimizer.family_grid or (DEFAULT_FAMILY_COUNT,) * n_parameters
     if len(counts) == 1:
@@ -193,15 +205,7 @@ def design_family(scene) -> tuple[tuple, DesignFamily | None]:
     rows = np.array([row_of(p) for p in grid])
     reference_row = None if cal.reference is None else \
         row_of(next(p for p in scene.poses if p.name == cal.reference))
-    one_d = [_difference_matrix(a) for a in axes]
-    derivative = []
-    for i in range(len(axes)):
-        factors = [one_d[j] if j == i else np.eye(len(axes[j])) for j in range(len(axes))]
-        m = factors[0]
-        for f in factors[1:]:
-            m = np.kron(m, f)
-        derivative.append(m)
-    derivative = np.array(derivative)
+    derivative = grid_derivatives(axes)
     x, dim = _targets(grid, cal.target, values)
     g = np.einsum("pgh,ho->gpo", derivative, x)  # ∂X/∂θ_p per grid point
     sensitivity = np.einsum("gpo,gqo->gpq", g, g) / (x.shape[1] // dim)
@@ -222,14 +226,6 @@ def design_scene(scene):
 
 
 # ---------------------------------------------------------------- objective terms
-def _soft_min(values: np.ndarray, tau: float) -> tuple[float, np.ndarray]:
-    """−τ log Σ exp(−v/τ) (≤ min v) and its gradient (a softmax), without overflow."""
-    low = values.min()
-    weight = np.exp(-(values - low) / tau)
-    total = weight.sum()
-    return float(low - tau * np.log(total)), weight / total
-
-
 def _features(c: np.ndarray, reference_row: int | None) -> tuple[np.ndarray, np.ndarray | None]:
     if reference_row is None:
         return c, None
@@ -268,7 +264,7 @@ class ProtocolDissimilarity(_Term):
         delta = f[a] - f[b]
         var, dvar_ddelta, dvar_dref = difference_variance(delta, ref, self.noise)
         d_pair = (delta**2 / var).sum(axis=1)
-        value, weight = _soft_min(d_pair, self.tau)
+        value, weight = soft_min(d_pair, self.tau)
         # ∂D/∂Δ = 2Δ/V − Δ² V'/V², ∂D/∂V = −Δ²/V² (per capacitor)
         g_var = -weight[:, None] * delta**2 / var**2
         g_delta = weight[:, None] * 2 * delta / var + g_var * dvar_ddelta

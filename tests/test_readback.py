@@ -16,7 +16,7 @@ from mscap.calibration import NoiseModel
 from mscap.errors import GeometryError, SceneError
 from mscap.objective import PlateAreaBarrier, capacitance_term
 from mscap.readback import (DesignFamily, ProtocolDissimilarity, ReconstructionBound, _difference_matrix,
-                            design_scene, difference_variance, reading_variance)
+                            design_scene, grid_derivatives, difference_variance, reading_variance)
 from mscap.scene import load_scene
 from mscap.selection import RunSummary, select
 from tests.test_objective import check_gradient
@@ -64,15 +64,9 @@ def synthetic_family(reference_row, rng, counts=(3, 2)):
     axes = tuple(np.linspace(0.0, 1.0 + i, n) for i, n in enumerate(counts))
     values = np.array(list(itertools.product(*axes)))
     n, p = len(values), len(axes)
-    derivative = []
-    for i in range(p):
-        m = np.ones((1, 1))
-        for j, axis in enumerate(axes):
-            m = np.kron(m, _difference_matrix(axis) if j == i else np.eye(len(axis)))
-        derivative.append(m)
     g = rng.standard_normal((n, p, 6))
     rows = np.arange(n) + (reference_row is not None)
-    return DesignFamily(tuple("ab"[:p]), axes, values, rows, reference_row, np.array(derivative),
+    return DesignFamily(tuple("ab"[:p]), axes, values, rows, reference_row, grid_derivatives(axes),
                         np.einsum("gpo,gqo->gpq", g, g) / 2, np.array([0.7, 0.4][:p]), NOISE)
 
 

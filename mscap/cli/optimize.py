@@ -51,6 +51,7 @@ def run(args) -> int:
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     final = result.layout
+    bound = None if scene.design_family is None else ReconstructionBound(scene.design_family, scene.optimizer.tau_mm)
     poses = [p.name for p in scene.poses]
     (out / "outlines.json").write_text(json.dumps(
         {"scene": scene.path, "min_gap_mm": scene.min_gap_mm,
@@ -71,11 +72,8 @@ def run(args) -> int:
                "initial_min_l1_pF": result.initial.min_l1_pF, "final_min_l1_pF": result.evaluation.min_l1_pF,
                "initial_J": result.initial.J, "final_J": result.evaluation.J,
                "remeshes": sum(r.event == "remesh" for r in result.history),
-               **({} if scene.design_family is None else {
-                   "initial_bound_mm": ReconstructionBound(scene.design_family, scene.optimizer.tau_mm).value(
-                       result.initial.capacitance_pF),
-                   "final_bound_mm": ReconstructionBound(scene.design_family, scene.optimizer.tau_mm).value(
-                       result.evaluation.capacitance_pF)}),
+               **({} if bound is None else {"initial_bound_mm": bound.value(result.initial.capacitance_pF),
+                                            "final_bound_mm": bound.value(result.evaluation.capacitance_pF)}),
                "poses": poses,
                "capacitance_pF": {name: row.tolist()
                                   for name, row in zip(poses, result.evaluation.capacitance_pF)},
