@@ -5,7 +5,7 @@ The stages, each a module returning a frozen dataclass:
 (LayeredMesh) → later: elastic, electrostatic, objective, optimize, multistart.
 """
 
-from .errors import GeometryError, MeshError, MscapError, SceneError
+from mscap.errors import GeometryError, MeshError, MscapError, SceneError
 
 __version__ = "0.1.0"
 

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from mscap.mesh2d import TriMesh
-from mscap.store import HISTORY_COLUMNS, RunRecord
+from mscap.mesh.triangulate import TriMesh
+from mscap.service.store import HISTORY_COLUMNS, RunRecord
 
 
 def _value(v) -> str:

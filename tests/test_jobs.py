@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from mscap.scene import load_scene
+from mscap.scene.settings import load_scene
 
 JOBS = Path(__file__).resolve().parents[1] / "jobs"
-# biaxial_quick: tests/test_bodies.py; quick: make run and tests/test_multistart.py
+# biaxial_quick: tests/bodies/test_bodies.py; quick: make run and tests/service/test_multistart.py
 QUICK = ["wrist_quick", "joystick_quick", "pneumatic_quick", "glove_quick", "poking_quick", "poking_cross_quick"]
 PAPER = ["poking", "poking_cross", "biaxial", "pneumatic", "joystick", "wrist", "glove"]
 
@@ -44,9 +44,9 @@ def test_quick_scene_is_its_paper_scene_on_coarser_settings(name):
 @pytest.mark.parametrize("name", QUICK)
 def test_quick_scene_takes_one_optimisation_step(name):
     pytest.importorskip("igl")
-    from mscap.design import build_design
-    from mscap.layout import check_layout
-    from mscap.optimize import optimize
+    from mscap.design.pipeline import build_design
+    from mscap.geometry.layout import check_layout
+    from mscap.design.optimizer import optimize
 
     design = build_design(load_scene(JOBS / f"{name}.toml"))
     scene = design.scene  # its design poses: the listed ones, or a sub-grid of the calibration family

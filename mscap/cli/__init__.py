@@ -14,9 +14,9 @@ import sys
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from .. import __version__
-from ..errors import MscapError
-from . import calibrate, capacitance, inspect, merge, mesh, optimize, plot, readout, run, simulate
+from mscap import __version__
+from mscap.errors import MscapError
+from mscap.cli import calibrate, capacitance, inspect, merge, mesh, optimize, plot, readout, run, simulate
 
 __all__ = ["main"]
 

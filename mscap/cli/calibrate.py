@@ -48,9 +48,9 @@ def _designs_from_optimize(scene, directory: Path, baselines: list[str] | None) 
     """The final layout of an ``mscap optimize`` output directory and its baselines:
     ``initial`` (rebuilt from the run's k, seed and init: initial layouts are functions
     of those alone) and ``scene``."""
-    from ..calibrate import CalibrationError, Design
-    from ..initial import initial_layout
-    from ..layout import Layout
+    from mscap.calibration.service import CalibrationError, Design
+    from mscap.geometry.initial import initial_layout
+    from mscap.geometry.layout import Layout
 
     try:
         outlines = json.loads((directory / "outlines.json").read_text())["outlines_mm"]
@@ -76,9 +76,9 @@ def _designs_from_optimize(scene, directory: Path, baselines: list[str] | None) 
 
 def designs_from(scene, spec: str, baselines: list[str] | None) -> list:
     """The design named by ``spec`` (a results file, optionally ``:RUN``, or an ``mscap
-    optimize`` output directory) and its baselines, as :class:`~mscap.calibrate.Design`."""
-    from ..calibrate import Design
-    from ..store import check_scene, read_design, read_store, split_design_spec
+    optimize`` output directory) and its baselines, as :class:`~mscap.calibration.service.Design`."""
+    from mscap.calibration.service import Design
+    from mscap.service.store import check_scene, read_design, read_store, split_design_spec
 
     if Path(spec).is_dir():
         return _designs_from_optimize(scene, Path(spec), baselines)
@@ -102,9 +102,9 @@ def designs_from(scene, spec: str, baselines: list[str] | None) -> list:
 def run(args) -> int:
     from mpi4py import MPI
 
-    from ..calibrate import evaluate, settings, simulate_family
-    from ..store import split_design_spec
-    from .common import load_scene_for, progress_printer
+    from mscap.calibration.service import evaluate, settings, simulate_family
+    from mscap.service.store import split_design_spec
+    from mscap.cli.common import load_scene_for, progress_printer
 
     comm = MPI.COMM_WORLD
     rank = comm.Get_rank()
@@ -113,7 +113,7 @@ def run(args) -> int:
     if args.reference is not None:
         reference = None if args.reference == "none" else args.reference
         if reference is not None and reference not in {p.name for p in scene.poses}:
-            from ..calibrate import CalibrationError
+            from mscap.calibration.service import CalibrationError
 
             raise CalibrationError(f"--reference {reference!r}: no such pose in {scene.path} "
                                    f"({', '.join(p.name for p in scene.poses)})")

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..electrostatic import build_problem, solve
-from ..io import write_mesh
-from ..layered import mesh_scene
-from ..petsc import LinearSolver
-from .common import load_scene_for
+from mscap.fem.electrostatic import build_problem, solve
+from mscap.mesh.io import write_mesh
+from mscap.mesh.layered import mesh_scene
+from mscap.fem.petsc import LinearSolver
+from mscap.cli.common import load_scene_for
 
 
 def add_parser(sub) -> None:

@@ -1,6 +1,6 @@
 """``mscap inspect results.h5 [--json | --runs | --run ID]``: the per-k table of a
 multi-start results file, with the chosen k marked, every run's cost and accuracy, or one
-run's history. Accuracy is the run's finer-mesh error estimate (:mod:`mscap.accuracy`)."""
+run's history. Accuracy is the run's finer-mesh error estimate (:mod:`mscap.service.accuracy`)."""
 
 from __future__ import annotations
 
@@ -95,7 +95,7 @@ def runs_table(records) -> str:
 
 
 def _history(record) -> str:
-    from ..store import HISTORY_COLUMNS
+    from mscap.service.store import HISTORY_COLUMNS
 
     lines = [f"run {record.id}: k = {record.k}, seed {record.seed}, init {record.init}, status {record.status}, "
              f"rank {record.rank}, {record.wall_s:.1f} s, {record.iterations} iterations"
@@ -121,7 +121,7 @@ def _history(record) -> str:
 
 
 def run(args) -> int:
-    from ..store import finished_ids, read_run, read_store, store_selection
+    from mscap.service.store import finished_ids, read_run, read_store, store_selection
 
     with read_store(args.results) as store:
         if args.run_id:

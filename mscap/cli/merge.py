@@ -26,7 +26,7 @@ def merge(inputs, output, force: bool = False) -> int:
     Raises ``StoreError`` if the inputs hold different scenes, the output is one of the
     inputs or exists (without ``force``).
     """
-    from ..store import StoreError, read_store, store_selection, write_selection, finished_ids, create_store
+    from mscap.service.store import StoreError, read_store, store_selection, write_selection, finished_ids, create_store
 
     output = Path(output)
     if any(Path(i).resolve() == output.resolve() for i in inputs):

@@ -6,10 +6,10 @@ import json
 import time
 from pathlib import Path
 
-from ..io import write_mesh
-from ..layered import mesh_scene
-from ..quality import mesh_report
-from ..scene import load_scene
+from mscap.mesh.io import write_mesh
+from mscap.mesh.layered import mesh_scene
+from mscap.mesh.quality import mesh_report
+from mscap.scene.settings import load_scene
 
 
 def add_parser(sub) -> None:

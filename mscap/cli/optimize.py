@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import load_scene_for, progress_printer
+from mscap.cli.common import load_scene_for, progress_printer
 
 
 def add_parser(sub) -> None:
@@ -35,11 +35,11 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..design import build_design
-    from ..initial import initial_layout
-    from ..optimize import HISTORY_FIELDS, optimize
+    from mscap.design.pipeline import build_design
+    from mscap.geometry.initial import initial_layout
+    from mscap.design.optimizer import HISTORY_FIELDS, optimize
 
-    from ..readback import ReconstructionBound, design_scene
+    from mscap.design.readback import ReconstructionBound, design_scene
 
     scene = design_scene(load_scene_for(args))  # the design poses: listed, or from the family
     say = progress_printer(args.quiet) or (lambda message: None)
@@ -101,8 +101,8 @@ def figure(path: Path, scene, before, after, c_before: np.ndarray, c_after: np.n
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..design import min_pairwise_l1
-    from .plot import draw_layout
+    from mscap.design.pipeline import min_pairwise_l1
+    from mscap.cli.plot import draw_layout
 
     fig, axes = plt.subplots(2, 2, figsize=(10, 8.5))
     colours = plt.get_cmap("tab10")

@@ -72,7 +72,7 @@ class Panel:
 
 
 def panels(selection) -> list[Panel]:
-    """One ``Panel`` per k of a ``mscap.selection.Selection`` (ascending k); exactly the
+    """One ``Panel`` per k of a ``mscap.service.selection.Selection`` (ascending k); exactly the
     chosen k (if any) is flagged."""
     return [Panel(k=s.k, run_id=s.best_run, metric=s.best_metric, runs_ok=s.runs_ok,
                   runs_failed=s.runs_failed, chosen=s.k == selection.chosen_k and s.best_run is not None,
@@ -89,9 +89,9 @@ def grid_shape(n_k: int) -> tuple[int, int]:
 
 def _sheet_outline(store) -> np.ndarray | None:
     """The stored scene's sheet outline (mm), or ``None`` if it cannot be read."""
-    from .._toml import Table
-    from ..errors import MscapError
-    from ..scene import _read_sheet
+    from mscap.scene._toml import Table
+    from mscap.errors import MscapError
+    from mscap.scene.settings import _read_sheet
 
     try:
         data = tomllib.loads(store.attrs["scene_toml"])
@@ -162,7 +162,7 @@ def plot_results(results, output, dpi: int = 120) -> list[Panel]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..store import StoreError, finished_ids, read_run, read_store, store_selection
+    from mscap.service.store import StoreError, finished_ids, read_run, read_store, store_selection
 
     with read_store(results) as store:
         if not finished_ids(store):

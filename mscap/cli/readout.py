@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..patterns import optimise_patterns
-from ..calibration import NoiseModel
-from ..readout import (C_OFF_PF, C_ON_PF, MAX_DEFAULT_ALL_LEADS, ReadoutError, all_patterns,
+from mscap.readout.patterns import optimise_patterns
+from mscap.scene.calibration import NoiseModel
+from mscap.readout.array import (C_OFF_PF, C_ON_PF, MAX_DEFAULT_ALL_LEADS, ReadoutError, all_patterns,
                        check_rank, error_bound, grid_array, measurement_matrix, noise_gain, simulate_readout)
 
 __all__ = ["add_parser", "run", "choose_patterns", "readout_report", "text_report", "write_outputs",
@@ -186,8 +186,8 @@ def write_outputs(report: dict, directory) -> list[Path]:
 
 
 def run(args) -> int:
-    from ..scene import load_scene
-    from ..store import check_scene, read_design, read_store, split_design_spec
+    from mscap.scene.settings import load_scene
+    from mscap.service.store import check_scene, read_design, read_store, split_design_spec
 
     path, rid = split_design_spec(args.design)
     scene = load_scene(args.scene)

@@ -24,9 +24,9 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from mpi4py import MPI
 
-    from ..multistart import run_multistart
-    from ..selection import configurations
-    from .common import load_scene_for, progress_printer
+    from mscap.service.multistart import run_multistart
+    from mscap.service.selection import configurations
+    from mscap.cli.common import load_scene_for, progress_printer
 
     comm = MPI.COMM_WORLD
     scene = load_scene_for(args)

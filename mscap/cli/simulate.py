@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..elastic import tet_fields
-from ..io import write_mesh
-from ..simulate import simulate
-from .common import load_scene_for, progress_printer
+from mscap.fem.elastic.problem import tet_fields
+from mscap.mesh.io import write_mesh
+from mscap.fem.simulate import simulate
+from mscap.cli.common import load_scene_for, progress_printer
 
 
 def add_parser(sub) -> None:
@@ -40,7 +40,7 @@ def run(args) -> int:
         known = {p.name for p in scene.poses}
         unknown = [name for name in wanted if name not in known]
         if unknown:
-            from ..errors import SceneError
+            from mscap.errors import SceneError
 
             raise SceneError(scene.path, "poses", f"no pose named {unknown[0]!r}; "
                              f"the scene has {', '.join(p.name for p in scene.poses)}")

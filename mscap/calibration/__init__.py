@@ -1,0 +1,1 @@
+"""Virtual calibration: fit pose reconstruction on simulated read-outs, report the error."""

@@ -1,0 +1,360 @@
+"""Virtual calibration of designs: simulate the scene's pose family once per design
+(farmed over MPI, cached in HDF5), fit the reconstruction, score it under noise.
+
+:func:`simulate_family` fills the cache: for every design, the capacitances of the
+training grid and of the evaluation sequence (:mod:`mscap.scene.calibration`), simulated in
+chunks of poses that share one mesh; the master writes each chunk as it arrives and
+flushes, so a killed job keeps what finished and a rerun does only the rest. The cache
+is valid while the scene's physics and the family are unchanged (noise, kernel and
+smoothing are not part of that: re-scoring with other noise settings costs no
+simulation). :func:`evaluate` then fits :mod:`mscap.calibration.reconstruction` on each design's
+training capacitances and scores the sequence under the noise model.
+
+Cache layout (``format = "mscap-calibration"``)::
+
+    /                      attrs: format, schema_version, physics_sha256, family_sha256
+    /designs/<key>         attrs: label, k; outline_points_mm, outline_offsets,
+                           training_capacitance_pF (n_train, k), training_done (n_train,),
+                           sequence_capacitance_pF (n_seq, k), sequence_done (n_seq,),
+                           training_wall_s, sequence_wall_s (per pose, s)
+
+Capacitances of a pose whose simulation failed are NaN with ``done`` set; the fit skips
+such training poses and the scores leave such sequence poses out (both logged).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import time
+import tomllib
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+import h5py
+import numpy as np
+
+from mscap.scene.calibration import CalibrationSettings, family_poses
+from mscap.errors import MscapError
+from mscap.service.farm import Stop, farm, release, serve
+from mscap.geometry.layout import Layout
+from mscap.calibration.reconstruction import PoseErrors, fit, point_errors, score
+
+__all__ = ["CalibrationError", "Design", "FAMILIES", "families", "physics_sha256", "family", "targets",
+           "simulate_family", "read_cache", "evaluate", "DesignScore"]
+
+log = logging.getLogger(__name__)
+
+FORMAT = "mscap-calibration"
+SCHEMA_VERSION = 1
+FAMILIES = ("training", "sequence")
+
+
+class CalibrationError(MscapError):
+    """A calibration cannot run: no ``[calibration]``, a cache of another scene, ..."""
+
+
+@dataclass(frozen=True, eq=False)
+class Design:
+    """A layout to calibrate: ``label`` names it in tables and figures."""
+
+    label: str
+    outlines: tuple[np.ndarray, ...]
+
+    @property
+    def k(self) -> int:
+        return len(self.outlines)
+
+    @property
+    def key(self) -> str:
+        """HDF5 group name of the design (outline hash: a changed layout is a new entry)."""
+        h = hashlib.sha256()
+        for outline in self.outlines:
+            h.update(np.ascontiguousarray(outline, dtype=float).tobytes())
+        return f"{self.label.replace(':', '__').replace('/', '_')}_{h.hexdigest()[:12]}"
+
+
+def settings(scene) -> CalibrationSettings:
+    """The scene's calibration settings, or a :class:`CalibrationError` naming the file."""
+    if scene.calibration is None:
+        raise CalibrationError(f"{scene.path}: no [calibration] section (the pose family to "
+                               "train and evaluate on); see docs/calibration.md")
+    return scene.calibration
+
+
+def physics_sha256(scene) -> str:
+    """Hash of everything in the scene that can change a simulated capacitance: the
+    scene's data without the tables that cannot (``[calibration]``, ``[optimizer]``,
+    ``[multistart]``, name and description)."""
+    data = tomllib.loads(scene.source)
+    for key in ("calibration", "optimizer", "multistart", "name", "description"):
+        data.pop(key, None)
+    text = json.dumps(data, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def families(scene) -> tuple[str, ...]:
+    """The pose sets to simulate: training, sequence and ``reference_<pose>`` if the
+    calibration reads a reference pose (named by the pose: another reference is another
+    set, the cached ones stay valid)."""
+    cal = settings(scene)
+    return FAMILIES + ((f"reference_{cal.reference}",) if cal.reference else ())
+
+
+def family(scene, which: str) -> tuple:
+    """The training, sequence or reference poses of the scene's calibration."""
+    cal = settings(scene)
+    if which.startswith("reference_"):
+        return tuple(p for p in scene.poses if p.name == which[len("reference_"):])
+    template = next(p for p in scene.poses if p.name == cal.pose)
+    return family_poses(template, cal.parameters, getattr(cal, which), which)
+
+
+def targets(scene, which: str) -> tuple[np.ndarray, int]:
+    """``(n, n_out)`` reconstruction targets of a family and the point dimension: the
+    posed object's vertices (object frame, mm; dim 3) or the parameters (dim 1)."""
+    cal = settings(scene)
+    if cal.target == "parameters":
+        return np.array(getattr(cal, which), dtype=float), 1
+    poses = family(scene, which)
+    return np.array([p.vertex_positions(1.0).ravel() for p in poses]), 3
+
+
+# ---------------------------------------------------------------- simulation (workers)
+@dataclass(frozen=True, eq=False)
+class _Task:
+    design: int
+    which: str
+    start: int
+    stop: int
+
+
+def _simulate_chunk(scene, design: Design, poses: tuple, mesh=None) -> tuple[np.ndarray, np.ndarray]:
+    """Capacitances ``(n, k)`` and wall times of ``poses`` on one mesh of ``design``.
+    A chunk that fails is redone pose by pose so only the failing poses are lost (NaN)."""
+    from mscap.mesh.layered import mesh_scene
+    from mscap.fem.simulate import simulate
+
+    s = replace(scene, layout=Layout(design.outlines), poses=poses)
+    mesh = mesh or mesh_scene(s)
+    try:
+        sim = simulate(s, mesh=mesh)
+        return sim.capacitance_pF, np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])
+    except MscapError as exc:
+        if len(poses) == 1:
+            log.warning("design %s, pose %s failed: %s", design.label, poses[0].name, exc)
+            return np.full((1, design.k), np.nan), np.zeros(1)
+    parts = [_simulate_chunk(scene, design, (p,), mesh) for p in poses]
+    return np.vstack([c for c, _ in parts]), np.concatenate([w for _, w in parts])
+
+
+def _work(scene, designs, poses_of):
+    def work(task: _Task):
+        poses = poses_of[task.which][task.start:task.stop]
+        return task, *_simulate_chunk(scene, designs[task.design], poses)
+    return work
+
+
+# ---------------------------------------------------------------- cache (master)
+def _open_cache(path, scene) -> h5py.File:
+    physics, fam = physics_sha256(scene), settings(scene).family_sha256()
+    path = Path(path)
+    if path.exists():
+        try:
+            f = h5py.File(path, "r+")
+        except OSError as exc:
+            raise CalibrationError(f"{path}: cannot open the calibration cache ({exc})") from None
+        if f.attrs.get("format") != FORMAT:
+            f.close()
+            raise CalibrationError(f"{path} is not an mscap calibration cache; give another --cache")
+        stale = (int(f.attrs.get("schema_version", -1)) != SCHEMA_VERSION
+                 or f.attrs.get("physics_sha256") != physics or f.attrs.get("family_sha256") != fam)
+        if not stale:
+            return f
+        f.close()
+        log.warning("%s: cache of another scene or pose family; starting it over", path)
+    f = h5py.File(path, "w")
+    f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "physics_sha256": physics,
+                    "family_sha256": fam})
+    f.create_group("designs")
+    return f
+
+
+def _design_group(cache: h5py.File, design: Design, sizes: dict[str, int]) -> h5py.Group:
+    designs = cache["designs"]
+    if design.key in designs:
+        g = designs[design.key]
+    else:
+        g = designs.create_group(design.key)
+        g.attrs.update({"label": design.label, "k": design.k})
+        points = np.vstack(design.outlines)
+        offsets = np.cumsum([0] + [len(o) for o in design.outlines])
+        g.create_dataset("outline_points_mm", data=points)
+        g.create_dataset("outline_offsets", data=offsets.astype(np.int64))
+    for which, n in sizes.items():
+        if f"{which}_done" in g:
+            continue
+        g.create_dataset(f"{which}_capacitance_pF", data=np.full((n, design.k), np.nan))
+        g.create_dataset(f"{which}_done", data=np.zeros(n, dtype=bool))
+        g.create_dataset(f"{which}_wall_s", data=np.zeros(n))
+    cache.flush()
+    return g
+
+
+def _chunks(todo: np.ndarray, size: int) -> list[tuple[int, int]]:
+    """Runs of at most ``size`` consecutive missing poses (``todo`` is a boolean mask)."""
+    out, i, n = [], 0, len(todo)
+    while i < n:
+        if not todo[i]:
+            i += 1
+            continue
+        j = i
+        while j < n and todo[j] and j - i < size:
+            j += 1
+        out.append((i, j))
+        i = j
+    return out
+
+
+def simulate_family(scene, designs: list[Design], cache_path, comm=None,
+                    progress: Callable[[str], None] | None = None) -> None:
+    """Simulate every design's training and sequence poses that the cache lacks.
+
+    Under ``mpirun`` rank 0 writes the cache and the other ranks simulate; with one rank
+    everything runs here. Returns on every rank when done (or when stopped by SIGTERM,
+    after which a rerun completes the rest).
+    """
+    # MPI before any file is open: a singleton MPI start forks OpenMPI's orted, which
+    # would inherit the open cache and hold its HDF5 lock for the life of the process.
+    from mpi4py import MPI
+
+    say = progress or (lambda m: None)
+    comm = comm or MPI.COMM_WORLD
+    names = families(scene)
+    poses_of = {which: family(scene, which) for which in names}
+    if comm.Get_rank() != 0:
+        serve(comm, _work(scene, designs, poses_of))
+        return
+    try:
+        cache = _open_cache(cache_path, scene)
+    except Exception:
+        release(comm)
+        raise
+    stop = Stop()
+    try:
+        sizes = {which: len(poses_of[which]) for which in names}
+        groups = [_design_group(cache, d, sizes).name for d in designs]
+        n_workers = max(comm.Get_size() - 1, 1)
+        missing = [(i, which, ~cache[g][f"{which}_done"][()]) for i, g in enumerate(groups) for which in names]
+        # about two chunks per worker, but at least 4 poses each (a chunk meshes once)
+        size = max(4, math.ceil(sum(int(m.sum()) for *_, m in missing) / (2 * n_workers)))
+        tasks = [_Task(i, which, a, b) for i, which, m in missing for a, b in _chunks(m, size)]
+        total = sum(t.stop - t.start for t in tasks)
+        say(f"{cache_path}: {len(designs)} designs × ({sizes['training']} training + "
+            f"{sizes['sequence']} sequence poses"
+            + "".join(f" + reference pose {w[len('reference_'):]}" for w in names if w.startswith("reference_"))
+            + f"); {total} poses to simulate in {len(tasks)} chunks "
+            f"on {n_workers} worker{'s' if n_workers > 1 else ''}")
+        started, done = time.perf_counter(), 0
+
+        def record(result) -> None:
+            nonlocal done
+            task, capacitance, wall = result
+            g = cache[groups[task.design]]
+            g[f"{task.which}_capacitance_pF"][task.start:task.stop] = capacitance
+            g[f"{task.which}_wall_s"][task.start:task.stop] = wall
+            g[f"{task.which}_done"][task.start:task.stop] = True
+            cache.flush()
+            done += task.stop - task.start
+            failed = int(np.isnan(capacitance).any(axis=1).sum())
+            eta = (time.perf_counter() - started) / done * (total - done)
+            say(f"[{done}/{total}] {designs[task.design].label} {task.which} poses {task.start}-"
+                f"{task.stop - 1}: {wall.sum():.1f} s" + (f", {failed} failed" if failed else "")
+                + f"; ETA {eta:.0f} s")
+
+        if comm.Get_size() == 1:
+            work = _work(scene, designs, poses_of)
+            for task in tasks:
+                if stop.requested:
+                    break
+                record(work(task))
+        else:
+            farm(comm, tasks, record, stop)
+    finally:
+        stop.restore()
+        cache.close()
+    if stop.requested:
+        say("stopped: the finished poses are cached; rerun the same command to complete the rest")
+        if comm.Get_size() > 1:
+            comm.Abort(0)
+
+
+def read_cache(cache_path, design: Design, names=FAMILIES) -> dict[str, np.ndarray]:
+    """A design's cached capacitances and wall times of the pose sets ``names``."""
+    with h5py.File(cache_path, "r") as f:
+        if design.key not in f["designs"]:
+            raise CalibrationError(f"{cache_path}: design {design.label} not simulated yet")
+        g = f["designs"][design.key]
+        out = {}
+        for which in names:
+            if f"{which}_done" not in g or not g[f"{which}_done"][()].all():
+                raise CalibrationError(f"{cache_path}: design {design.label} has unsimulated "
+                                       f"{which} poses; run the calibration again to complete it")
+            out[which] = g[f"{which}_capacitance_pF"][()]
+            out[f"{which}_wall_s"] = g[f"{which}_wall_s"][()]
+        return out
+
+
+# ---------------------------------------------------------------- scoring (master)
+@dataclass(frozen=True, eq=False)
+class DesignScore:
+    """A design's reconstruction errors over the sequence (``errors``: runs × poses;
+    NaN columns for sequence poses that failed to simulate). ``no_signal`` is the mean
+    point error per sequence pose of a sensor that tells nothing (always answering the
+    mean training pose): errors near it mean the read-outs carry no usable signal."""
+
+    design: Design
+    errors: PoseErrors
+    no_signal: np.ndarray
+    training_used: int
+    training_failed: int
+    samples: int
+    sequence_failed: int
+    simulation_s: float
+
+
+def evaluate(scene, designs: list[Design], cache_path, noise=None) -> list[DesignScore]:
+    """Fit and score every design from the cache (``noise`` overrides the scene's)."""
+    cal = settings(scene)
+    noise = noise or cal.noise
+    train_y, dim = targets(scene, "training")
+    seq_y, _ = targets(scene, "sequence")
+    scores = []
+    for design in designs:
+        data = read_cache(cache_path, design, families(scene))
+        c_train, c_seq = data["training"], data["sequence"]
+        c_ref = None
+        if cal.reference:
+            c_ref = data[f"reference_{cal.reference}"][0]
+            if not (np.isfinite(c_ref).all() and (c_ref > 0).all()):
+                raise CalibrationError(f"design {design.label}: the reference pose {cal.reference!r} "
+                                       f"has capacitances {c_ref} pF; cannot divide by them")
+        ok_train = np.isfinite(c_train).all(axis=1)
+        ok_seq = np.isfinite(c_seq).all(axis=1)
+        if (~ok_train).any() or (~ok_seq).any():
+            log.warning("design %s: %d training and %d sequence poses failed to simulate; left out",
+                        design.label, (~ok_train).sum(), (~ok_seq).sum())
+        features = c_train[ok_train] if c_ref is None else c_train[ok_train] / c_ref
+        model = fit(features, train_y[ok_train], cal.kernel, cal.smoothing)
+        errors = score(model, c_seq[ok_seq], seq_y[ok_seq], dim, noise, reference_pF=c_ref)
+        full_mean = np.full((noise.runs, len(c_seq)), np.nan)
+        full_max = full_mean.copy()
+        full_mean[:, ok_seq], full_max[:, ok_seq] = errors.mean, errors.max
+        no_signal = point_errors(train_y[ok_train].mean(axis=0)[None], seq_y, dim).mean(axis=1)
+        scores.append(DesignScore(design, PoseErrors(full_mean, full_max), no_signal, int(ok_train.sum()),
+                                  int((~ok_train).sum()), len(model.groups), int((~ok_seq).sum()),
+                                  float(sum(data[f"{w}_wall_s"].sum() for w in families(scene)))))
+    return scores

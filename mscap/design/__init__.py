@@ -1,0 +1,1 @@
+"""Layout design: the forward + gradient pipeline, the objective J, the deformer, the optimiser."""

@@ -1,0 +1,419 @@
+"""Objective terms of the layout optimisation (paper §5), each with a value and a gradient.
+
+The optimiser minimises
+
+    J(C, X) = −d(C) + w_b B(X) + w_s S(X)
+
+with C the ``(n_poses, k)`` pose capacitances (pF) and X the capacitor outlines (mm).
+The capacitance term and the geometry terms stay separate objects: ∂J/∂C goes into the
+adjoint solves, ∂J/∂X straight to the control (Wᵀ). Terms add (``a + b`` → :class:`Sum`)
+and scale (``w * a`` → :class:`Weighted`); :func:`layout_objective` builds J from a scene.
+
+- :class:`Dissimilarity` d = −τ log Σ_{a<b} exp(−‖C_a − C_b‖²/τ), a soft minimum of the
+  pairwise squared distances (pF²), evaluated as min D − τ log Σ exp(−(D − min D)/τ): no
+  overflow or underflow to −log 0 at any D/τ, and min D − τ log(#pairs) ≤ d ≤ min D.
+- :class:`SeparationBarrier` B = Σ b(d − g) over vertex–edge pairs of *different*
+  outlines, and of outlines against the sheet boundary, with b the C² IPC barrier of
+  :mod:`mscap.fem.elastic.contact` and d the point–segment distance (mm). The shift g is
+  ``gap_mm`` between capacitors and ``margin_mm`` (default: the gap) to the sheet, so B
+  is infinite exactly when the min gap is violated and zero once every d ≥ g + d̂
+  (d̂ defaults to the gap: the barrier acts between one and two gaps). The sum is
+  unweighted; a vertex close to another *vertex* is counted once per incident edge,
+  which a barrier tolerates. Vertices never meet their own outline's edges in B;
+  self-intersection is instead kept out by :meth:`SeparationBarrier.max_step`, which
+  also bounds non-incident vertex–edge pairs of the same outline (shift 0), with the
+  smoothing term discouraging the spikes that would bring them close.
+- :class:`LaplacianSmoothing` S = Σ_i ‖x_i − (x_{i−1} + x_{i+1})/2‖² (mm²) over closed
+  outlines, not length-normalised: invariant under rigid motions, ∝ scale², and for a
+  smooth curve sampled at spacing h it falls like h³, so w_s must be chosen at the mesh's
+  outline spacing. It also shrinks outlines slightly (a curve-shortening flow).
+
+Why numpy rather than ipctk: ipctk's 2D barrier works on squared distances with its own
+``dmin`` convention, its pair filter (``can_collide``) is a Python callback per
+candidate, and its CCD stops at one absolute minimum distance, whereas the step bound
+here keeps each pair above a fraction of its own current gap. The vectorised version
+below is short, exact in mm, and adds no dependency. Broad phase: a
+:class:`scipy.spatial.cKDTree` on all vertices with radius = longest capacitor edge +
+shift + reach; the few sheet edges (possibly long) are paired with every capacitor
+vertex.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from mscap.fem.elastic.contact import barrier, barrier_derivatives
+from mscap.errors import GeometryError, MscapError
+
+__all__ = ["soft_min", "Dissimilarity", "PlateAreaBarrier", "DISTANCES", "capacitance_term", "SeparationBarrier", "LaplacianSmoothing", "Weighted", "Sum",
+           "LayoutObjective", "layout_objective"]
+
+
+def soft_min(values: np.ndarray, tau: float) -> tuple[float, np.ndarray]:
+    """−τ log Σ exp(−v/τ) (≤ min v) and its gradient (a softmax summing to 1), evaluated
+    about the minimum: no overflow or underflow at any v/τ."""
+    low = values.min()
+    weight = np.exp(-(values - low) / tau)  # in (0, 1], the minimum gives 1
+    total = weight.sum()
+    return float(low - tau * np.log(total)), weight / total
+
+
+def _scaled(g, w: float):
+    return tuple(w * x for x in g) if isinstance(g, tuple) else w * g
+
+
+def _added(g, h):
+    return tuple(x + y for x, y in zip(g, h)) if isinstance(g, tuple) else g + h
+
+
+class _Term:
+    """A term maps its input (C, or a sequence of outlines) to a float and a gradient of
+    the same shape (an array, or a tuple of ``(m_i, 2)`` arrays)."""
+
+    def value_and_gradient(self, x):
+        raise NotImplementedError
+
+    def value(self, x) -> float:
+        return self.value_and_gradient(x)[0]
+
+    def gradient(self, x):
+        return self.value_and_gradient(x)[1]
+
+    def __add__(self, other: _Term) -> Sum:
+        return Sum((self, other))
+
+    def __rmul__(self, weight: float) -> Weighted:
+        return Weighted(self, float(weight))
+
+
+@dataclass(frozen=True)
+class Dissimilarity(_Term):
+    """Soft minimum (pF²) of pairwise squared distances of pose capacitance vectors."""
+
+    tau_pF2: float = 1.0
+
+    def __post_init__(self):
+        if not self.tau_pF2 > 0:
+            raise MscapError(f"[optimizer] tau_pF2 must be positive, got {self.tau_pF2!r}")
+
+    def value_and_gradient(self, capacitance_pF: np.ndarray) -> tuple[float, np.ndarray]:
+        """``d`` and ``∂d/∂C`` (pF), ``C`` of shape ``(n_poses, k)`` with n_poses ≥ 2."""
+        c = np.asarray(capacitance_pF, dtype=float)
+        if c.ndim != 2 or len(c) < 2:
+            raise MscapError(f"capacitances must be (n_poses >= 2, k), got shape {c.shape}")
+        # Differences, not the Gram trick: ~60 pF readings differ by ~1 pF.
+        diff = c[:, None, :] - c[None, :, :]
+        dist2 = np.einsum("abk,abk->ab", diff, diff)
+        a, b = np.triu_indices(len(c), 1)
+        pair = dist2[a, b]
+        value, weight = soft_min(pair, self.tau_pF2)
+        w = np.zeros_like(dist2)
+        w[a, b] = weight  # ∂d/∂D_ab: a softmax, summing to 1
+        w += w.T
+        return value, 2 * np.einsum("ab,abk->ak", w, diff)
+
+
+def _point_edge(p, a, b):
+    """Distance of points ``p`` to segments ``ab`` (pairwise), the closest parameter t and
+    the vector from the closest point to p."""
+    ab, ap = b - a, p - a
+    length2 = np.einsum("ij,ij->i", ab, ab)
+    t = np.clip(np.einsum("ij,ij->i", ap, ab) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    r = ap - t[:, None] * ab
+    return np.linalg.norm(r, axis=1), t, r
+
+
+@dataclass(frozen=True, eq=False)
+class SeparationBarrier(_Term):
+    """IPC barrier keeping capacitor outlines ``gap_mm`` apart and ``margin_mm`` inside the
+    sheet. Outlines are closed ``(m_i, 2)`` arrays (mm); the sheet does not move. Assumes
+    a feasible start (:func:`mscap.geometry.layout.check_layout`), which :meth:`max_step` keeps."""
+
+    sheet_outline_mm: np.ndarray
+    gap_mm: float
+    dhat_mm: float | None = None
+    margin_mm: float | None = None
+    sheet: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        dhat = self.gap_mm if self.dhat_mm is None else self.dhat_mm
+        if not dhat > 0:
+            raise MscapError(f"barrier d̂ must be positive, got {dhat!r} mm (with [capacitors] "
+                             f"min_gap_mm = {self.gap_mm!r}, give dhat_mm explicitly)")
+        object.__setattr__(self, "dhat_mm", float(dhat))
+        object.__setattr__(self, "margin_mm", float(self.gap_mm if self.margin_mm is None
+                                                    else self.margin_mm))
+        object.__setattr__(self, "sheet", np.asarray(self.sheet_outline_mm, dtype=float))
+
+    def _stack(self, outlines):
+        """All vertices (capacitors, then the sheet, whose owner is ``len(outlines)``), the
+        owner, next and previous vertex of each, and the outline sizes."""
+        polygons = [np.asarray(o, dtype=float) for o in outlines] + [self.sheet]
+        sizes = np.array([len(p) for p in polygons])
+        start = np.repeat(np.cumsum(sizes) - sizes, sizes)
+        size = np.repeat(sizes, sizes)
+        local = np.arange(sizes.sum()) - start
+        owner = np.repeat(np.arange(len(polygons)), sizes)
+        return (np.vstack(polygons), owner, start + (local + 1) % size,
+                start + (local - 1) % size, sizes)
+
+    def _pairs(self, x, owner, nxt, prv, reach, same_outline, v=None, keep=0.0):
+        """Vertex–edge pairs ``(p, e)`` (edge e runs from vertex e to ``nxt[e]``) that may
+        come within ``shift + reach``; pairs within one outline only if ``same_outline``.
+        Given velocities ``v``, also drop vertex pairs too far apart for their relative
+        speed to close (1 − keep) of it: a pair (p, ab) is needed only if (1 − keep)(d − g)
+        < L = ‖v_p − v_j‖ for the faster endpoint j, and d ≥ ‖x_p − x_j‖ − longest edge."""
+        sheet = owner[-1]
+        cap = owner != sheet
+        longest = np.linalg.norm(x[nxt[cap]] - x[cap], axis=1).max()
+        base = longest + max(self.gap_mm, self.margin_mm)
+        i, j = cKDTree(x).query_pairs(base + reach, output_type="ndarray").T
+        if v is not None:
+            apart = np.linalg.norm(x[i] - x[j], axis=1) - base
+            closing = np.linalg.norm(v[i] - v[j], axis=1) / (1 - keep)
+            i, j = i[apart < closing], j[apart < closing]
+        p, e = np.r_[i, i, j, j], np.r_[j, prv[j], i, prv[i]]
+        p, e = p[cap[e]], e[cap[e]]  # sheet edges are added below, all of them
+        on_sheet = np.flatnonzero(~cap)
+        p = np.r_[p, np.repeat(np.flatnonzero(cap), len(on_sheet))]
+        e = np.r_[e, np.tile(on_sheet, cap.sum())]
+        use = owner[p] != owner[e]
+        if same_outline:
+            use |= (owner[p] == owner[e]) & (p != e) & (p != nxt[e])
+        code = np.unique(p[use] * len(x) + e[use])
+        return code // len(x), code % len(x)
+
+    def _shift(self, owner, p, e):
+        sheet = owner[-1]
+        shift = np.where((owner[p] == sheet) | (owner[e] == sheet), self.margin_mm, self.gap_mm)
+        return np.where(owner[p] == owner[e], 0.0, shift)
+
+    def _violation(self, owner, p, e, s):
+        bad = np.flatnonzero(s <= 0)
+        if len(bad):
+            i, j = sorted((int(owner[p[bad[0]]]), int(owner[e[bad[0]]])))
+            what = "the sheet edge" if j == owner[-1] else f"capacitor {j}"
+            raise GeometryError(f"capacitor {i} violates the minimum gap to {what} "
+                                f"(by {-s[bad[0]]:.3g} mm)", i)
+
+    def value(self, outlines) -> float:
+        """B (mm²); ``inf`` when a minimum gap or margin is violated."""
+        x, owner, nxt, prv, _ = self._stack(outlines)
+        p, e = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
+        d, _, _ = _point_edge(x[p], x[e], x[nxt[e]])
+        return float(barrier(d - self._shift(owner, p, e), self.dhat_mm).sum())
+
+    def value_and_gradient(self, outlines):
+        """B and a tuple of ``(m_i, 2)`` gradients (mm); raises GeometryError if infeasible."""
+        x, owner, nxt, prv, sizes = self._stack(outlines)
+        p, e = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
+        d, t, r = _point_edge(x[p], x[e], x[nxt[e]])
+        s = d - self._shift(owner, p, e)
+        self._violation(owner, p, e, s)
+        on = s < self.dhat_mm
+        p, e, d, t, r, s = p[on], e[on], d[on], t[on], r[on], s[on]
+        # ∂d/∂p = n, ∂d/∂a = −(1 − t) n, ∂d/∂b = −t n (t is optimal, so its variation drops).
+        force = (barrier_derivatives(s, self.dhat_mm)[0] / d)[:, None] * r
+        grad = np.zeros_like(x)
+        np.add.at(grad, p, force)
+        np.add.at(grad, e, -(1 - t)[:, None] * force)
+        np.add.at(grad, nxt[e], -t[:, None] * force)
+        value = float(barrier(s, self.dhat_mm).sum())
+        return value, tuple(np.split(grad, np.cumsum(sizes)[:-1])[:-1])
+
+    def max_step(self, outlines, directions, keep: float = 0.1, iterations: int = 50) -> float:
+        """Largest α ∈ [0, 1] (conservative) such that along ``x + α v`` no vertex–edge
+        shifted distance s = d − g (capacitor–capacitor, capacitor–sheet, and
+        non-incident within an outline with g = 0) drops below ``keep`` times its current
+        value.
+
+        Additive CCD (Li et al. 2021) per pair: d is Lipschitz in α with constant
+        L = max(‖v_p − v_a‖, ‖v_p − v_b‖) (the relative speed of p and any point of ab),
+        so from α_n it stays above the target for (d(α_n) − target)/L; stepping 0.99
+        times that never crosses it, and a head-on approach converges in a few steps.
+        """
+        if not 0 <= keep < 1:
+            raise MscapError(f"keep must be in [0, 1), got {keep!r}")
+        x, owner, nxt, prv, _ = self._stack(outlines)
+        v = np.vstack([np.asarray(o, dtype=float) for o in directions] + [0 * self.sheet])
+        speed = np.linalg.norm(v, axis=1).max()
+        if speed == 0:
+            return 1.0
+        p, e = self._pairs(x, owner, nxt, prv, 2 * speed / (1 - keep), True, v, keep)
+        b = nxt[e]
+        d, _, _ = _point_edge(x[p], x[e], x[b])
+        shift = self._shift(owner, p, e)
+        self._violation(owner, p, e, d - shift)
+        target = shift + keep * (d - shift)
+        lipschitz = np.maximum(np.linalg.norm(v[p] - v[e], axis=1),
+                               np.linalg.norm(v[p] - v[b], axis=1))
+        near = lipschitz > d - target  # may reach the target within α ≤ 1
+        p, e, b, target, lipschitz = p[near], e[near], b[near], target[near], lipschitz[near]
+        alpha, ceiling = np.zeros(len(p)), 1.0
+        for _ in range(iterations):
+            # A pair that has stalled caps the answer; pairs already past the cap can't lower it.
+            live = alpha < ceiling
+            p, e, b, target, lipschitz, alpha = (a[live] for a in (p, e, b, target, lipschitz, alpha))
+            if not len(p):
+                break
+            d, _, _ = _point_edge(x[p] + alpha[:, None] * v[p], x[e] + alpha[:, None] * v[e],
+                                  x[b] + alpha[:, None] * v[b])
+            step = 0.99 * np.maximum(d - target, 0.0) / lipschitz
+            alpha = alpha + step
+            if (step < 1e-9).any():
+                ceiling = min(ceiling, float(alpha[step < 1e-9].min()))
+        return min(ceiling, float(alpha.min())) if len(alpha) else ceiling
+
+
+@dataclass(frozen=True)
+class LaplacianSmoothing(_Term):
+    """S = Σ_i ‖x_i − (x_{i−1} + x_{i+1})/2‖² over closed outlines (mm²)."""
+
+    def value_and_gradient(self, outlines):
+        value, grads = 0.0, []
+        for outline in outlines:
+            o = np.asarray(outline, dtype=float)
+            lap = o - 0.5 * (np.roll(o, 1, axis=0) + np.roll(o, -1, axis=0))
+            value += float(np.sum(lap * lap))
+            # S = ‖L x‖² with L symmetric (circulant), so ∇S = 2 L (L x).
+            grads.append(2 * (lap - 0.5 * (np.roll(lap, 1, axis=0) + np.roll(lap, -1, axis=0))))
+        return value, tuple(grads)
+
+
+@dataclass(frozen=True)
+class Weighted(_Term):
+    """``weight`` times a term (a zero weight gives 0 even where the term is infinite)."""
+
+    term: _Term
+    weight: float
+
+    def value(self, x) -> float:
+        return 0.0 if self.weight == 0 else self.weight * self.term.value(x)
+
+    def value_and_gradient(self, x):
+        v, g = self.term.value_and_gradient(x)
+        return (0.0 if self.weight == 0 else self.weight * v), _scaled(g, self.weight)
+
+
+@dataclass(frozen=True)
+class Sum(_Term):
+    """The sum of terms of the same input."""
+
+    terms: tuple
+
+    def value(self, x) -> float:
+        return float(sum(t.value(x) for t in self.terms))
+
+    def value_and_gradient(self, x):
+        value, grad = self.terms[0].value_and_gradient(x)
+        for t in self.terms[1:]:
+            v, g = t.value_and_gradient(x)
+            value, grad = value + v, _added(grad, g)
+        return value, grad
+
+
+@dataclass(frozen=True)
+class LayoutObjective:
+    """J = capacitance(C) + geometry(outlines), and the barrier's step bound."""
+
+    capacitance: _Term
+    geometry: _Term
+    barrier: SeparationBarrier
+    area: PlateAreaBarrier | None = None
+
+    def value(self, capacitance_pF: np.ndarray, outlines) -> float:
+        return self.capacitance.value(capacitance_pF) + self.geometry.value(outlines)
+
+    def max_step(self, outlines, directions, keep: float = 0.1) -> float:
+        return self.barrier.max_step(outlines, directions, keep)
+
+
+#: ``[optimizer] distance``: how pose capacitance vectors are compared.
+DISTANCES = ("pF", "noise", "reconstruction")
+
+
+def capacitance_term(scene) -> _Term:
+    """The term d of the scene, maximised (J = −d + ...):
+
+    - ``"pF"``: :class:`Dissimilarity` (``tau_pF2``);
+    - ``"noise"``: :class:`mscap.design.readback.ProtocolDissimilarity` (``tau_noise``), pairwise
+      distances in the read-out noise of the ``[calibration]`` protocol (tared when it
+      names a reference pose, else raw; appendix A's noise without a calibration);
+    - ``"reconstruction"``: minus :class:`mscap.design.readback.ReconstructionBound` (``tau_mm``),
+      so d = −bound (mm); needs design poses from the calibration family.
+    """
+    settings = scene.optimizer
+    if settings.distance == "pF":
+        return Dissimilarity(settings.tau_pF2)
+    from mscap.scene.calibration import NoiseModel
+    from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, design_scene
+
+    scene = design_scene(scene)
+    if settings.distance == "reconstruction":
+        if scene.design_family is None:
+            from mscap.errors import SceneError
+
+            raise SceneError(scene.path, "optimizer.design_poses",
+                             'distance = "reconstruction" needs poses from the calibration family: '
+                             'set design_poses = "family" or "both"')
+        return -1.0 * ReconstructionBound(scene.design_family, settings.tau_mm)
+    cal = scene.calibration
+    noise = cal.noise if cal is not None else NoiseModel()
+    reference = None
+    if scene.design_family is not None:
+        reference = scene.design_family.reference_row
+    elif cal is not None and cal.reference is not None:
+        reference = [p.name for p in scene.poses].index(cal.reference)
+    return ProtocolDissimilarity(noise, reference, settings.tau_noise)
+
+
+@dataclass(frozen=True)
+class PlateAreaBarrier(_Term):
+    """Barrier on the total plate area (the paper's "limited capacitor area"):
+    b(1 − A/A_max) with the IPC barrier of :mod:`mscap.fem.elastic.contact` (d̂ = ``dhat``, relative),
+    zero while A ≤ (1 − d̂) A_max, infinite at A ≥ A_max; A = Σ_j |area of outline j| (mm²)."""
+
+    max_area_mm2: float
+    dhat: float = 0.1
+
+    @staticmethod
+    def areas(outlines) -> np.ndarray:
+        """Signed area (mm²) of each closed outline (shoelace)."""
+        return np.array([0.5 * np.sum(o[:, 0] * np.roll(o[:, 1], -1) - np.roll(o[:, 0], -1) * o[:, 1])
+                         for o in (np.asarray(x, dtype=float) for x in outlines)])
+
+    def value_and_gradient(self, outlines):
+        signed = self.areas(outlines)
+        slack = 1.0 - np.abs(signed).sum() / self.max_area_mm2
+        if slack <= 0:
+            raise GeometryError(f"the plates' total area {np.abs(signed).sum():.6g} mm² reaches "
+                                f"[optimizer] max_plate_area_mm2 = {self.max_area_mm2:g}")
+        value = float(barrier(np.array([slack]), self.dhat)[0])
+        db = barrier_derivatives(np.array([slack]), self.dhat)[0][0] * (-1.0 / self.max_area_mm2)
+        grads = []
+        for o, a in zip(outlines, signed):
+            o = np.asarray(o, dtype=float)
+            d_signed = 0.5 * np.c_[np.roll(o[:, 1], -1) - np.roll(o[:, 1], 1), np.roll(o[:, 0], 1) - np.roll(o[:, 0], -1)]
+            grads.append(db * np.sign(a) * d_signed)
+        return value, tuple(grads)
+
+    def value(self, outlines) -> float:
+        slack = 1.0 - np.abs(self.areas(outlines)).sum() / self.max_area_mm2
+        return float(barrier(np.array([slack]), self.dhat)[0])
+
+
+def layout_objective(scene, dhat_mm: float | None = None) -> LayoutObjective:
+    """J = −d + w_b (B + B_area) + w_s S from a scene's ``[optimizer]`` (``distance``,
+    ``tau_pF2`` / ``tau_noise`` / ``tau_mm``, ``barrier_weight``, ``smoothing_weight``,
+    ``max_plate_area_mm2``) and ``[capacitors] min_gap_mm``."""
+    settings = scene.optimizer
+    separation = SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm)
+    geometry = settings.barrier_weight * separation + settings.smoothing_weight * LaplacianSmoothing()
+    area = PlateAreaBarrier(settings.max_plate_area_mm2) if settings.max_plate_area_mm2 > 0 else None
+    if area is not None:
+        geometry = geometry + settings.barrier_weight * area
+    return LayoutObjective(capacitance=-1.0 * capacitance_term(scene), geometry=geometry, barrier=separation,
+                           area=area)

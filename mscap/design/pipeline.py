@@ -1,0 +1,285 @@
+"""The design pipeline on one screen: control q → rest meshes → poses → capacitances → J,
+and back: ∂J/∂C → one adjoint per pose → ∂J/∂X → Wᵀ → dJ/dq (paper §5).
+
+A :class:`Design` holds what depends on the rest meshes only: the electrostatic mesh and
+problem, the elastic problem on its own (coarser) mesh with the fixed transfer ``T``, and
+the skinning deformer. The deformer's weights ``W`` live on the electrostatic 2D mesh; the
+elastic mesh's 2D vertices follow the *same* blend, interpolated there,
+
+    X2d_fine(q) = X2d_fine0 + W q,      X2d_el(q) = X2d_el0 + T2d W q,
+
+with ``T2d`` the P1 interpolation of the fine 2D mesh at the elastic 2D vertices
+(:func:`mscap.mesh.transfer.p1_matrix`). Both meshes embed the outlines and the sheet edge, so an
+elastic vertex on an outline stays on the deformed outline and one on the sheet edge
+stays put (W vanishes there). Every level of each mesh moves with its 2D vertex.
+
+The gradient is the chain of the objective's pieces:
+
+    ∂J/∂C_i = −∂d/∂C_i                    (per pose, a (k,) weight vector)
+    ∂J/∂X   = Σ_i pose_rest_gradient(i)     (one elastic adjoint per pose, mscap.fem.adjoint)
+    dJ/dq   = Wᵀ Σ_levels ∂J/∂X_fine,xy + (T2d W)ᵀ Σ_levels ∂J/∂X_el,xy
+              + Wᵀ (∂(w_b B + w_s S)/∂outline vertices)
+
+Each pose's Newton solve starts from its displacement at the previous accepted design
+(:meth:`Design.evaluate` ``warm=``), one load step, so an optimisation iteration costs a
+few Newton steps per pose; when that fails the pose falls back to its full load path.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from mscap.fem import electrostatic
+from mscap.fem.adjoint import moved, pose_rest_gradient
+from mscap.design.deformer import Deformer, build_deformer
+from mscap.fem.elastic.problem import ElasticError
+from mscap.errors import GeometryError, MscapError, SceneError
+from mscap.fem.elastic.loading import loading_for
+from mscap.fem.elastic.newton import Operator, solve_pose
+from mscap.design.objective import DISTANCES, LaplacianSmoothing, capacitance_term, layout_objective
+from mscap.fem.petsc import LinearSolver
+from mscap.design.readback import design_scene
+from mscap.fem.simulate import PoseResult, Simulation, elastic_setup, simulate
+from mscap.mesh.transfer import p1_matrix
+
+__all__ = ["DesignError", "Design", "Evaluation", "build_design", "min_pairwise_l1"]
+
+log = logging.getLogger(__name__)
+
+
+class DesignError(MscapError):
+    """A design evaluation produced a non-finite value or cannot be carried out."""
+
+
+def min_pairwise_l1(capacitance_pF: np.ndarray) -> float:
+    """Smallest L1 distance (pF) between the capacitance vectors of two poses."""
+    c = np.asarray(capacitance_pF, dtype=float)
+    a, b = np.triu_indices(len(c), 1)
+    return float(np.abs(c[a] - c[b]).sum(axis=1).min()) if len(a) else 0.0
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """J and its parts at one design ``q``.
+
+    ``J = −d + w_b · barrier + w_s · smoothing`` (+ w_b · the plate-area barrier); ``d``
+    (:func:`mscap.design.objective.capacitance_term`: pF², noise units, or −mm for the read-back
+    bound), ``barrier`` and ``smoothing`` (mm²) unweighted; ``capacitance_pF``
+    ``(n_poses, k)`` over the design poses; ``sim`` holds the moved meshes and each
+    pose's equilibrium with its kept factorisation (for :meth:`Design.gradient`, until
+    :meth:`release`); ``newton_iterations`` per pose.
+    """
+
+    q: np.ndarray
+    J: float
+    d: float
+    barrier: float
+    smoothing: float
+    capacitance_pF: np.ndarray
+    sim: Simulation
+    newton_iterations: tuple[int, ...]
+    time_s: float
+    released: bool = False
+
+    @property
+    def min_l1_pF(self) -> float:
+        return min_pairwise_l1(self.capacitance_pF)
+
+    def release(self) -> None:
+        """Destroy the kept factorisations (PETSc objects) now: :meth:`Design.gradient`
+        needs them, nothing else does. Dropping the last reference is not enough — the
+        poking scene kept ~34 MB of native memory per evaluation alive that way."""
+        for result in self.sim.poses:
+            operator = None if result.state is None else result.state.operator
+            if operator is not None:
+                operator.destroy()
+        object.__setattr__(self, "released", True)
+
+    def displacements(self) -> list[np.ndarray | None]:
+        """Per pose, the elastic node displacement ``(n_nodes, 3)`` (``None`` if free)."""
+        return [None if r.state is None else r.state.nodes - self.sim.elastic.rest for r in self.sim.poses]
+
+
+@dataclass(frozen=True, eq=False)
+class Design:
+    """Scene, rest meshes and problems (``base``: a :class:`Simulation` without poses),
+    the deformer (weights on the electrostatic 2D mesh) and ``elastic_weights`` ``T2d W``
+    on the elastic mesh's 2D vertices (``None`` on a shared mesh)."""
+
+    scene: object
+    base: Simulation
+    deformer: Deformer
+    elastic_weights: np.ndarray | None
+    #: Solvers reused by every evaluation (same patterns, so PETSc's symbolic
+    #: factorisations are kept; a new KSP per evaluation also kept ~15 MB each alive).
+    workspace: dict = field(default_factory=dict, repr=False)
+
+    def _solvers(self):
+        if "electro" not in self.workspace:
+            self.workspace["electro"] = LinearSolver("electro_")
+            self.workspace["elastic"] = None if self.base.elastic is None else Operator(self.base.elastic)
+        return self.workspace["electro"], self.workspace["elastic"]
+
+    @property
+    def n_controls(self) -> int:
+        return self.deformer.n_controls
+
+    # -- the forward map -------------------------------------------------------------
+    def rest_points(self, q) -> tuple[np.ndarray, np.ndarray | None]:
+        """Rest positions of the electrostatic and the elastic mesh vertices at ``q``."""
+        fine = self.deformer.points3d(self.base.mesh, q)
+        if self.base.elastic is None or self.elastic_weights is None:
+            return fine, None
+        mesh = self.base.elastic.mesh
+        elastic = np.array(mesh.points, dtype=float)
+        shift = self.elastic_weights @ self.deformer._q(q)
+        elastic[:, :2] += np.tile(shift, (len(mesh.points) // len(shift), 1))
+        return fine, elastic
+
+    def evaluate(self, q, warm: Evaluation | list | None = None) -> Evaluation:
+        """J, d, barrier, smoothing and C at ``q``; each pose warm-starts from ``warm``
+        (an :class:`Evaluation` of this design, or per-pose displacements)."""
+        started = time.perf_counter()
+        q = np.array(self.deformer._q(q))
+        scene = self.scene
+        objective = layout_objective(scene)
+        outlines = self.deformer.outlines(q)
+        barrier = objective.barrier.value(outlines)
+        if not np.isfinite(barrier):
+            raise GeometryError(f"the outlines at this design violate the minimum gap (barrier {barrier})")
+        area = 0.0 if objective.area is None else objective.area.value(outlines)
+        if not np.isfinite(area):
+            raise GeometryError("the outlines at this design reach [optimizer] max_plate_area_mm2")
+        smoothing = LaplacianSmoothing().value(outlines)
+        fine, elastic = self.rest_points(q)
+        sim = moved(self.base, fine, elastic)
+        starts = warm.displacements() if isinstance(warm, Evaluation) else (warm or [None] * len(scene.poses))
+        solver, operator = self._solvers()
+        results, iterations = [], []
+        for i, pose in enumerate(scene.poses):
+            state, vertices = None, sim.mesh.points
+            if pose.kind != "free":
+                state = _equilibrium(sim, scene, i, starts[i], operator)
+                vertices = sim.vertices(state.nodes)
+            caps = electrostatic.solve(sim.electro, vertices, solver=solver)
+            if not np.isfinite(caps.capacitance_pF).all():
+                raise DesignError(f"pose {pose.name!r}: capacitances {caps.capacitance_pF} are not finite")
+            results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, 0.0, 0.0))
+            iterations.append(0 if state is None else state.newton_iterations)
+        sim = replace(sim, poses=tuple(results))
+        capacitance = sim.capacitance_pF
+        d = capacitance_term(scene).value(capacitance)
+        settings = scene.optimizer
+        J = -d + settings.barrier_weight * (barrier + area) + settings.smoothing_weight * smoothing
+        if not np.isfinite(J):
+            raise DesignError(f"J = {J} is not finite (d = {d}, barrier = {barrier}, smoothing = {smoothing})")
+        return Evaluation(q, float(J), float(d), float(barrier), float(smoothing), capacitance, sim,
+                          tuple(iterations), time.perf_counter() - started)
+
+    def gradient(self, q_or_evaluation) -> np.ndarray:
+        """``dJ/dq`` ``(c, 2)`` at an :class:`Evaluation` (or at ``q``, evaluated first)."""
+        e = q_or_evaluation if isinstance(q_or_evaluation, Evaluation) else self.evaluate(q_or_evaluation)
+        if e.released:
+            raise DesignError("this evaluation's factorisations were released; evaluate again")
+        scene = self.scene
+        objective = layout_objective(scene)
+        dJ_dC = -capacitance_term(scene).gradient(e.capacitance_pF)
+        g_fine = np.zeros_like(e.sim.mesh.points)
+        g_elastic = None if e.sim.elastic is None else np.zeros((e.sim.elastic.n_vertices, 3))
+        for i in range(len(scene.poses)):
+            part = pose_rest_gradient(e.sim, i, dJ_dC[i], scene)
+            g_fine += part.fine
+            if g_elastic is not None:
+                g_elastic += part.elastic
+        grad = self.deformer.vjp(g_fine)
+        if g_elastic is not None:
+            if self.elastic_weights is None:  # shared mesh: the same positions
+                grad += self.deformer.vjp(g_elastic)
+            else:
+                n2 = len(self.elastic_weights)
+                grad += self.elastic_weights.T @ g_elastic.reshape(-1, n2, 3)[:, :, :2].sum(axis=0)
+        # Geometry terms: outline vertices are fine-mesh vertices.
+        outlines = self.deformer.outlines(e.q)
+        _, g_geometry = objective.geometry.value_and_gradient(outlines)
+        g2d = np.zeros((len(self.deformer.rest2d), 2))
+        for chain, g in zip(self.deformer.outline_vertices, g_geometry):
+            np.add.at(g2d, chain, g)
+        grad += self.deformer.vjp(g2d)
+        if not np.isfinite(grad).all():
+            raise DesignError(f"dJ/dq is not finite ({int((~np.isfinite(grad)).sum())} entries)")
+        return grad
+
+    def refined(self, q) -> "Design":
+        """Twice the control points (:meth:`Deformer.refined`) on the geometry at ``q``:
+        the rest meshes move there (same numbering, so warm starts carry over) and the new
+        design starts at ``q = 0``."""
+        fine, elastic = self.rest_points(q)
+        base = moved(self.base, fine, elastic)
+        deformer = self.deformer.refined(q)
+        weights = None
+        if base.elastic is not None and base.transfer is not None:
+            weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
+        return Design(replace(self.scene, layout=deformer.layout(deformer.zeros())), base, deformer, weights)
+
+
+def _equilibrium(sim: Simulation, scene, i: int, start, operator):
+    """Pose ``i``'s equilibrium at ``sim``'s rest meshes with the factorisation kept: one
+    load step from ``rest + start`` when given, else (or when that fails) the full path."""
+    pose, problem = scene.poses[i], sim.elastic
+    loading = loading_for(problem, pose)
+    if start is not None:
+        warm = problem.rest + start
+        try:
+            return solve_pose(problem, replace(loading, load_steps=1, guess=lambda x, t: warm), scene.elastic,
+                              operator, keep_factorisation=True)
+        except ElasticError as exc:
+            log.warning("pose %s: warm start failed (%s); solving along the full load path", pose.name, exc)
+    return solve_pose(problem, loading, scene.elastic, operator, keep_factorisation=True)
+
+
+def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:
+    """``T2d W`` ``(n_el2d, c)``: the skinning weights interpolated (P1 on the deformer's
+    mesh) at the elastic mesh's 2D vertices."""
+    return np.asarray(p1_matrix(deformer.mesh2d, elastic_mesh2d.points) @ deformer.weights)
+
+
+def build_design(scene, *, layout=None, control_spacing_mm: float | None = None, count=None,
+                 method: str | None = None, base: Simulation | None = None) -> Design:
+    """Mesh ``scene`` (with ``layout`` in place of its own, if given) and build the design.
+
+    Controls: ``count`` per outline, else ``control_spacing_mm`` (default: the scene's
+    ``[optimizer] control_spacing_mm``); ``method``: skinning (default the scene's).
+    """
+    if layout is not None:
+        scene = replace(scene, layout=layout)
+    scene = design_scene(scene)
+    settings = scene.optimizer
+    from mscap.design.deformer import METHODS
+
+    if (method or settings.skinning) not in METHODS:
+        raise SceneError(scene.path, "optimizer.skinning", f"unknown value {method or settings.skinning!r}; "
+                         f"expected one of {', '.join(METHODS)}")
+    if settings.distance not in DISTANCES:
+        raise SceneError(scene.path, "optimizer.distance", f"unknown value {settings.distance!r}; "
+                         f"expected one of {', '.join(DISTANCES)}")
+    for key in ("control_spacing_mm", "first_step_mm", "max_step_mm", "tau_pF2", "tau_noise", "tau_mm"):
+        if not getattr(settings, key) > 0:
+            raise SceneError(scene.path, f"optimizer.{key}", f"must be > 0, got {getattr(settings, key)!r}")
+    if len(scene.poses) < 2:
+        raise SceneError(scene.path, "poses", f"the design objective compares poses: need at least 2, "
+                         f"got {len(scene.poses)}")
+    if base is None:
+        base = simulate(replace(scene, poses=()), mesh=None)
+        problem, transfer = elastic_setup(scene, base.mesh)
+        base = replace(base, elastic=problem, transfer=transfer)
+    spacing = None if count is not None else (control_spacing_mm or settings.control_spacing_mm)
+    deformer = build_deformer(base.mesh.mesh2d, scene.layout, spacing_mm=spacing, count=count,
+                              method=method or settings.skinning)
+    weights = None
+    if base.elastic is not None and base.transfer is not None:
+        weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
+    return Design(scene, base, deformer, weights)

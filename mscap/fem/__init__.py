@@ -1,0 +1,1 @@
+"""Finite elements: P1/P2 kernels, PETSc plumbing, electrostatics, elasticity, adjoints, the forward loop."""

@@ -1,0 +1,1 @@
+"""Quasi-static neo-Hookean elasticity: the problem, the material, Newton, loading, contact."""

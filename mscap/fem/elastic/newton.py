@@ -1,0 +1,426 @@
+"""Newton's method with load stepping for one pose: the elastic equilibrium.
+
+Each load step moves the pose's load fraction ``t`` towards 1 (grip stretch, ball depth,
+glued surface). A step starts from the first feasible of a few predictors (secant
+extrapolation of the last two steps, the pose's own guess, the linearised response to
+the new boundary data, the last state), with the Dirichlet values of the new ``t`` and
+nodes pushed out of the ball, then runs Newton on the total energy:
+
+* the Hessian is factorised as it is (``hessian="exact"``), made positive semi-definite
+  element by element (``"projected"``), or first as it is and projected only when the
+  factorisation fails, the step is not a descent direction, or the previous step was
+  damped below 1/2 (``"auto"``, the default);
+* a backtracking line search accepts the first step length with sufficient energy
+  decrease; a trial with an inverted element (J ≤ 0) has infinite energy, and the step
+  length is bounded so that every node keeps at least a tenth of its gap to the ball;
+* convergence is ``max |g_i| / s_i ≤ tol`` over free dofs, with ``s`` the node's force
+  scale ``Σ μ vol^(2/3)``: the residual stress in units of μ.
+
+Intermediate load steps stop at ``step_tolerance`` (they only carry the path); the last
+one meets ``tolerance``. When Newton stalls (line search fails, or too many iterations)
+the load step is halved, and grows back after each success; after ``max_cuts`` halvings the pose fails with an :class:`~mscap.fem.elastic.problem.ElasticError`
+that names the pose, the load step and the residual. Nothing non-finite is ever accepted.
+
+Dirichlet dofs are kept in the matrix as identity rows and columns, so the CSR pattern —
+and PETSc's symbolic factorisation — is the same for every pose of a mesh.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from mscap.fem.elastic.contact import Ball
+from mscap.fem.elastic.problem import ElasticError, ElasticProblem, assemble, total_energy
+from mscap.fem.petsc import LinearSolveError, LinearSolver, petsc
+from mscap.fem.profile import timed
+from mscap.scene.settings import HESSIAN_MODES, ElasticSettings
+
+__all__ = ["Loading", "NewtonSettings", "ElasticState", "Operator", "solve_pose", "HESSIAN_MODES"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Loading:
+    """What a pose does to one problem (built by :mod:`mscap.fem.elastic.loading`).
+
+    Attributes
+    ----------
+    pose
+        Pose name (for messages).
+    fixed
+        ``(n_nodes, 3)`` Dirichlet mask.
+    targets
+        ``t ↦ (n_nodes, 3)`` positions whose fixed entries are the Dirichlet values at
+        load fraction ``t`` (1 is the pose).
+    ball
+        ``t ↦ Ball`` for a poke, else ``None``.
+    load_steps
+        Initial number of load steps.
+    guess
+        Optional ``(x, t) ↦ x`` first guess for a load step from ``x`` (e.g. the glued
+        sheet extruded along the surface normal).
+    """
+
+    pose: str
+    fixed: np.ndarray
+    targets: Callable[[float], np.ndarray]
+    ball: Callable[[float], Ball] | None = None
+    load_steps: int = 1
+    guess: Callable[[np.ndarray, float], np.ndarray] | None = None
+    column_push: Callable[[np.ndarray, Ball], np.ndarray] | None = None
+
+
+#: Newton and load-stepping parameters are the scene's ``[elastic]`` table.
+NewtonSettings = ElasticSettings
+
+
+@dataclass(frozen=True)
+class ElasticState:
+    """The equilibrium of one pose.
+
+    Attributes
+    ----------
+    pose
+        Pose name.
+    nodes
+        ``(n_nodes, 3)`` equilibrium node positions (mm); the first ``n_vertices`` rows
+        are the mesh vertices.
+    load_steps, newton_iterations, step_cuts
+        Accepted load steps, Newton iterations over all of them, halvings of a step.
+    residual
+        Final scaled residual (see module docstring).
+    min_j
+        Smallest J over all quadrature points.
+    energy_mJ
+        Total energy (elastic plus contact).
+    min_gap_mm
+        Smallest node–ball gap (poke), else ``None``.
+    projected
+        Newton iterations that used the projected Hessian (all of them in
+        ``"projected"`` mode, the fallbacks in ``"auto"`` mode).
+    times
+        Seconds spent in ``assembly``, ``factorisation``, ``solve``, ``line_search``.
+    operator
+        The factorised Hessian at the equilibrium (only with ``keep_factorisation``).
+    """
+
+    pose: str
+    nodes: np.ndarray
+    load_steps: int
+    newton_iterations: int
+    step_cuts: int
+    residual: float
+    min_j: float
+    energy_mJ: float
+    min_gap_mm: float | None
+    projected: int
+    times: dict
+    operator: "Operator | None" = field(default=None, repr=False)
+
+    def vertices(self, n_vertices: int) -> np.ndarray:
+        """``(n_vertices, 3)`` vertex positions (mm)."""
+        return self.nodes[:n_vertices]
+
+
+class Operator:
+    """The Hessian over the problem's fixed CSR pattern, and its solver: the pattern never
+    changes, so every factorisation after the first is numeric only
+    (:meth:`~mscap.fem.petsc.LinearSolver.set_csr` keeps the symbolic one)."""
+
+    def __init__(self, problem: ElasticProblem, prefix: str = "elastic_"):
+        self._pattern = (problem.indices, problem.indptr)
+        self._shape = (problem.n_dofs, problem.n_dofs)
+        self.solver = LinearSolver(prefix)
+
+    def factorise(self, data: np.ndarray) -> None:
+        """Factorise the matrix with CSR values ``data``; a failed factorisation raises
+        :class:`LinearSolveError` here or at the first :meth:`solve`."""
+        try:
+            self.solver.set_csr(sp.csr_matrix((data, *self._pattern), shape=self._shape))
+        except petsc().Error as exc:
+            raise LinearSolveError(f"{self.solver.description} factorisation failed: {exc}") from exc
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        return self.solver.solve(rhs)
+
+    def destroy(self) -> None:
+        """Free the PETSc matrix and the factorisation now: petsc4py objects do not free
+        their native memory when garbage-collected (an optimisation that kept one
+        adjoint factorisation per evaluation grew by ~34 MB per evaluation)."""
+        self.solver.destroy()
+
+
+class _Stall(Exception):
+    def __init__(self, residual: float, why: str):
+        super().__init__(why)
+        self.residual, self.why = residual, why
+
+
+class _Pose:
+    """Newton's method for one loading; keeps the counters."""
+
+    def __init__(self, problem: ElasticProblem, loading: Loading, settings: NewtonSettings, operator: Operator):
+        self.problem, self.loading, self.settings, self.op = problem, loading, settings, operator
+        fixed = loading.fixed.ravel()
+        self.fixed = loading.fixed
+        rows = np.repeat(np.arange(problem.n_dofs), np.diff(problem.indptr))
+        self.clear = np.flatnonzero(fixed[rows] | fixed[problem.indices])
+        diag = problem.csr_of_block.reshape(-1, 3, 3)[problem.diag_block][:, [0, 1, 2], [0, 1, 2]]
+        self.fixed_diag = diag.ravel()[fixed]
+        self.diag_blocks = problem.csr_of_block.reshape(-1, 9)[problem.diag_block]
+        self.iterations = self.projected = 0
+        self.times = {"assembly": 0.0, "factorisation": 0.0, "solve": 0.0, "line_search": 0.0}
+        self.final_hessian: np.ndarray | None = None  # exact Hessian at the last converged state
+        self.ball: Ball | None = None
+
+    # -- energy and derivatives ------------------------------------------------------
+    def energy(self, x: np.ndarray) -> float:
+        if self.ball is not None and (self.ball.distances(x) <= 0).any():
+            return np.inf
+        e, _ = total_energy(self.problem, x)
+        return e + (self.ball.energy(x) if self.ball is not None and np.isfinite(e) else 0.0)
+
+    @timed("assembly")
+    def gradient_and_hessian(self, x: np.ndarray, hessian: bool, project: bool):
+        start = time.perf_counter()
+        a = assemble(self.problem, x, hessian=hessian, project=project)
+        if not np.isfinite(a.energy):
+            raise _Stall(np.inf, f"an element is inverted (min J {a.min_j:.3g})")
+        g = a.gradient.copy()
+        energy = a.energy
+        if self.ball is not None:
+            energy += self.ball.energy(x)
+            nodes, bg, bh = self.ball.terms(x, project=project)
+            np.add.at(g, nodes, bg)
+            if hessian:
+                np.add.at(a.hessian, self.diag_blocks[nodes].ravel(), bh.reshape(len(nodes), 9).ravel())
+        g[self.fixed] = 0.0
+        self.times["assembly"] += time.perf_counter() - start
+        return energy, g, a.hessian, a.min_j
+
+    def residual(self, g: np.ndarray) -> float:
+        return float(np.max(np.abs(g) / self.problem.force_scale[:, None])) if g.size else 0.0
+
+    def factorise(self, data: np.ndarray) -> None:
+        start = time.perf_counter()
+        scale = float(np.mean(np.abs(data[self.diag_blocks[:, 0]])))
+        data[self.clear] = 0.0
+        data[self.fixed_diag] = scale
+        try:
+            self.op.factorise(data)
+        finally:
+            self.times["factorisation"] += time.perf_counter() - start
+
+    def direction(self, g: np.ndarray) -> np.ndarray:
+        start = time.perf_counter()
+        p = self.op.solve(-g.ravel()).reshape(-1, 3)
+        self.times["solve"] += time.perf_counter() - start
+        p[self.fixed] = 0.0
+        return p
+
+    # -- Newton ----------------------------------------------------------------------
+    def newton(self, x: np.ndarray, tolerance: float) -> tuple[np.ndarray, float]:
+        mode = self.settings.hessian
+        e0 = self.energy(x)
+        if not np.isfinite(e0):
+            raise _Stall(np.inf, "the start is infeasible")
+        damped = False
+        for it in range(self.settings.max_iterations + 1):
+            # auto: after a step the line search cut below 1/2, Newton is far from the
+            # solution, where the exact Hessian's negative directions (a clamped sheet's
+            # lateral compression, the flat sheet under a ball) lead nowhere: one projected
+            # iteration there. Clamped λ = 2 stretch of grid3x3: 53 → 32 iterations.
+            project = mode == "projected" or (mode == "auto" and damped)
+            energy, g, h, _ = self.gradient_and_hessian(x, hessian=True, project=project)
+            r = self.residual(g)
+            if not np.isfinite(r):
+                raise _Stall(r, "the residual is not finite")
+            if r <= tolerance:
+                self.final_hessian = None if project else h
+                return x, r
+            if it == self.settings.max_iterations:
+                raise _Stall(r, f"no convergence in {it} Newton iterations")
+            self.iterations += 1
+            self.projected += project
+            p = None
+            try:
+                self.factorise(h)
+                p = self.direction(g)
+                if not np.vdot(g, p) < 0 or not np.isfinite(p).all():
+                    p = None
+            except LinearSolveError:
+                if mode != "auto":
+                    raise
+            if p is None:
+                if mode != "auto":
+                    raise _Stall(r, "the Newton direction is not a descent direction")
+                self.projected += 1
+                project = True
+                _, g, h, _ = self.gradient_and_hessian(x, hessian=True, project=True)
+                self.factorise(h)
+                p = self.direction(g)
+            x, alpha = self.line_search(x, energy, g, p, r)
+            damped = alpha < 0.5
+            log.debug("pose %s: Newton %d, residual %.3e, energy %.10g, step %.3g%s", self.loading.pose,
+                      self.iterations, r, energy, alpha, " (projected)" if project else "")
+        raise AssertionError("unreachable")
+
+    def line_search(self, x, energy, g, p, r) -> np.ndarray:
+        start = time.perf_counter()
+        slope = float(np.vdot(g, p))
+        alpha = 1.0 if self.ball is None else self.ball.max_step(x, p)
+        while alpha > 1e-12:
+            trial = x + alpha * p
+            e = self.energy(trial)
+            if e <= energy + 1e-4 * alpha * slope:
+                break
+            # Near convergence energy differences drown in round-off: accept a step that
+            # keeps the energy within round-off and reduces the residual.
+            if np.isfinite(e) and abs(e - energy) <= 1e-12 * abs(energy) + 1e-300:
+                _, g1, _, _ = self.gradient_and_hessian(trial, hessian=False, project=False)
+                if self.residual(g1) < r:
+                    break
+            alpha *= 0.5
+        self.times["line_search"] += time.perf_counter() - start
+        if alpha <= 1e-12:
+            raise _Stall(r, "the line search found no decrease")
+        return trial, alpha
+
+    # -- predictors ------------------------------------------------------------------
+    def feasible(self, x: np.ndarray, t: float) -> np.ndarray | None:
+        """``x`` with the Dirichlet values of ``t`` and pushed out of the ball, if valid."""
+        x = x.copy()
+        x[self.fixed] = self.loading.targets(t)[self.fixed]
+        if self.ball is not None and self.loading.column_push is not None:
+            x = self.loading.column_push(x, self.ball)
+        return x if np.isfinite(self.energy(x)) else None
+
+    def lift(self, x: np.ndarray, t: float) -> np.ndarray | None:
+        """Linearised elastic response to the change of Dirichlet values."""
+        delta = np.zeros_like(x)
+        delta[self.fixed] = self.loading.targets(t)[self.fixed] - x[self.fixed]
+        if not delta.any():
+            return None
+        raw = self.final_hessian  # assembled at x by the convergence check of the last step
+        if raw is None or self.ball is not None:
+            ball, self.ball = self.ball, None  # x may lie inside the next step's ball
+            try:
+                _, _, raw, _ = self.gradient_and_hessian(x, hessian=True,
+                                                         project=self.settings.hessian == "projected")
+            except _Stall:
+                return None
+            finally:
+                self.ball = ball
+        try:
+            self.factorise(raw.copy())
+        except LinearSolveError:
+            return None
+        full = sp.csr_matrix((raw, self.problem.indices, self.problem.indptr), shape=(self.problem.n_dofs,) * 2)
+        rhs = -(full @ delta.ravel()).reshape(-1, 3)
+        rhs[self.fixed] = 0.0
+        start = time.perf_counter()
+        step = self.op.solve(rhs.ravel()).reshape(-1, 3)
+        self.times["solve"] += time.perf_counter() - start
+        step[self.fixed] = delta[self.fixed]
+        return x + step
+
+
+def solve_pose(problem: ElasticProblem, loading: Loading, settings: NewtonSettings | None = None,
+               operator: Operator | None = None, keep_factorisation: bool = False,
+               progress: Callable[[str], None] | None = None) -> ElasticState:
+    """Equilibrium of one pose by load stepping and Newton.
+
+    Parameters
+    ----------
+    problem
+        From :func:`mscap.fem.elastic.problem.build_problem`.
+    loading
+        The pose's boundary data.
+    settings
+        Newton parameters.
+    operator
+        An :class:`Operator` of this problem to reuse (its symbolic factorisation).
+    keep_factorisation
+        Factorise the exact Hessian at the equilibrium and return it in the state (for
+        adjoint solves); this uses a fresh operator.
+    progress
+        Called with a one-line message after every load step.
+
+    Raises
+    ------
+    ElasticError
+        When a load step cannot be completed after ``max_cuts`` halvings.
+    """
+    settings = settings or NewtonSettings()
+    if settings.hessian not in HESSIAN_MODES:
+        raise ElasticError(f"hessian mode must be one of {', '.join(HESSIAN_MODES)}, got {settings.hessian!r}")
+    run = _Pose(problem, loading, settings, operator or Operator(problem))
+    x = problem.rest.copy()
+    previous: tuple[np.ndarray, float] | None = None
+    t, dt, steps, cuts, residual = 0.0, 1.0 / loading.load_steps, 0, 0, 0.0
+    while t < 1.0:
+        t_new = min(1.0, t + dt)
+        if 1.0 - t_new < 1e-9:
+            t_new = 1.0
+        run.ball = loading.ball(t_new) if loading.ball else None
+        candidates = []
+        if previous is not None:
+            candidates.append(lambda: x + (t_new - t) / (t - previous[1]) * (x - previous[0]))
+        if loading.guess is not None:
+            candidates.append(lambda: loading.guess(x, t_new))
+        candidates.append(lambda: run.lift(x, t_new))
+        candidates.append(lambda: x)
+        start = None
+        for make in candidates:
+            guess = make()
+            if guess is not None and (start := run.feasible(guess, t_new)) is not None:
+                break
+        try:
+            if start is None:
+                raise _Stall(np.nan, "no feasible start (every predictor inverts an element or enters the ball)")
+            # Intermediate load steps only carry the path: a looser tolerance saves the
+            # last quadratic iterations there; the final state meets ``tolerance``.
+            solution, residual = run.newton(start, settings.tolerance if t_new == 1.0 else
+                                            max(settings.tolerance, settings.step_tolerance))
+        except (_Stall, LinearSolveError) as exc:
+            why = exc.why if isinstance(exc, _Stall) else str(exc)
+            r = exc.residual if isinstance(exc, _Stall) else np.nan
+            cuts += 1
+            if cuts > settings.max_cuts or dt < 1e-6:
+                raise ElasticError(f"pose {loading.pose!r}: load step {steps + 1} (t = {t:.4g} → {t_new:.4g}) "
+                                   f"failed after {cuts - 1} step cuts: {why}; residual "
+                                   f"{f'{r:.3g}' if np.isfinite(r) else 'not computed'}") from None
+            log.info("pose %s: load step t = %.4g → %.4g failed (%s); halving", loading.pose, t, t_new, why)
+            dt *= 0.5
+            continue
+        previous, x, t = (x, t), solution, t_new
+        steps += 1
+        dt = min(2.0 * dt, 1.0 / loading.load_steps)  # grow back after a cut
+        if progress:
+            progress(f"pose {loading.pose}: load step {steps} t = {t:.3g}, {run.iterations} Newton iterations, "
+                     f"residual {residual:.2e}")
+    energy = run.energy(x)
+    _, min_j = total_energy(problem, x)
+    op = None
+    if keep_factorisation:
+        op = Operator(problem, "adjoint_")
+        keeper = _Pose(problem, loading, settings, op)
+        keeper.ball = run.ball
+        h = run.final_hessian
+        if h is None:  # projected mode: the adjoint needs the exact Hessian
+            _, _, h, _ = keeper.gradient_and_hessian(x, hessian=True, project=False)
+        keeper.factorise(h.copy())
+    gap = float(run.ball.distances(x).min()) if run.ball is not None else None
+    state = ElasticState(loading.pose, x, steps, run.iterations, cuts, residual, min_j, energy, gap,
+                         run.projected, dict(run.times), op)
+    state.nodes.setflags(write=False)
+    log.info("pose %s: %d load steps, %d Newton iterations (%d projected), residual %.2e, min J %.4f",
+             loading.pose, steps, run.iterations, run.projected, residual, min_j)
+    return state

@@ -1,0 +1,292 @@
+"""Lagrange P1/P2 tetrahedra: basis tables and vectorised element kernels.
+
+Geometry is always the straight-sided (affine) tet: for P2 the extra nodes are the edge
+midpoints, so an element depends on the vertex positions only through the Jacobian
+``J = [p1 - p0, p2 - p0, p3 - p0]`` (edges as columns). Physical basis gradients are
+``G = D J⁻¹`` with ``D`` the reference gradients (rows), so a stiffness matrix is
+``vol · Σ_q w_q D_q A D_qᵀ`` with ``A = J⁻¹ J⁻ᵀ`` and quadrature weights ``w_q`` that sum
+to 1. The reference tensor ``S[k, l] = Σ_q w_q D_q[:, k] ⊗ D_q[:, l]`` turns assembly
+into one matrix product over all elements.
+
+Shape derivative (straight-sided P1/P2). For ``E = vol Σ_q w_q Σ_ab W_ab g_aq · g_bq``
+with field gradients ``g = J⁻ᵀ ĝ`` held at fixed nodal values and ``W`` symmetric,
+``d vol = vol tr(J⁻¹ dJ)`` and ``dg = -J⁻ᵀ dJᵀ g`` give
+
+    dE/dp_a = vol (tr(T) I - 2 T) ∇λ_a,    T = Σ_q w_q Σ_ab W_ab g_aq g_bqᵀ,
+
+with ``∇λ_a`` the P1 (vertex) gradients: the Maxwell stress of the field acting on the
+vertices. The rows sum to zero (translation invariance) for any field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mscap.fem.profile import timed
+
+__all__ = ["Element", "P1", "P2", "element", "dof_table", "jacobians", "stiffness", "energy_vjp"]
+
+#: Elements per block in the vectorised kernels (bounds temporary memory, not a loop
+#: over elements: each block is processed by whole-array operations).
+BLOCK = 32768
+
+#: The 6 edges of a tet as local vertex pairs; P2 edge node ``4 + e`` sits on edge ``e``.
+TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+
+# Reference gradients of the barycentric coordinates λ0 = 1 - ξ - η - ζ, λ1..3 = ξ, η, ζ.
+_DLAMBDA = np.array([[-1.0, -1.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class Element:
+    """A Lagrange tet element on the reference tet.
+
+    Attributes
+    ----------
+    order
+        Polynomial degree (1 or 2).
+    weights
+        ``(nq,)`` quadrature weights, normalised to sum to 1 (multiply by the volume).
+    gradients
+        ``(nq, nb, 3)`` reference gradients of the ``nb`` basis functions at the points.
+    tensor
+        ``(3, 3, nb, nb)`` reference stiffness tensor ``Σ_q w_q D_q[:, k] ⊗ D_q[:, l]``.
+    """
+
+    order: int
+    weights: np.ndarray
+    gradients: np.ndarray
+    tensor: np.ndarray
+
+    @property
+    def n_basis(self) -> int:
+        return self.gradients.shape[1]
+
+
+def _make(order: int, barycentric: np.ndarray, weights: np.ndarray) -> Element:
+    lam = np.asarray(barycentric, dtype=float)  # (nq, 4)
+    if order == 1:
+        grads = np.broadcast_to(_DLAMBDA, (len(lam), 4, 3)).copy()
+    else:
+        # N_a = λa(2λa − 1) → (4λa − 1)∇λa;  N_ab = 4 λa λb → 4(λa ∇λb + λb ∇λa).
+        vertex = (4 * lam - 1)[:, :, None] * _DLAMBDA[None]
+        a, b = TET_EDGES[:, 0], TET_EDGES[:, 1]
+        edge = 4 * (lam[:, a, None] * _DLAMBDA[b][None] + lam[:, b, None] * _DLAMBDA[a][None])
+        grads = np.concatenate([vertex, edge], axis=1)
+    weights = np.asarray(weights, dtype=float)
+    tensor = np.einsum("q,qik,qjl->klij", weights, grads, grads)
+    for array in (weights, grads, tensor):
+        array.setflags(write=False)
+    return Element(order, weights, grads, tensor)
+
+
+# P1 gradients are constant: one point. P2: the integrand |∇φ|² has degree 2, and the
+# 4-point rule (a, b, b, b), a = (5 + 3√5)/20, b = (5 − √5)/20, is exact for degree 2.
+_A, _B = (5 + 3 * np.sqrt(5)) / 20, (5 - np.sqrt(5)) / 20
+P1 = _make(1, [[0.25] * 4], [1.0])
+P2 = _make(2, _B + (_A - _B) * np.eye(4), [0.25] * 4)
+
+
+def element(order: int) -> Element:
+    """The element of the given order (1 or 2)."""
+    return {1: P1, 2: P2}[order]
+
+
+def dof_table(tets: np.ndarray, n_vertices: int, order: int) -> tuple[np.ndarray, int]:
+    """Degrees of freedom per tet and their number.
+
+    P1 dofs are the vertices. P2 adds one dof per unique edge, numbered after the
+    vertices (``n_vertices + edge``), so vertex values are the first ``n_vertices``
+    entries of any P2 field.
+
+    Returns
+    -------
+    dofs
+        ``(M, 4)`` or ``(M, 10)`` dof indices, local order as :data:`TET_EDGES`.
+    n_dofs
+        Total number of dofs.
+    """
+    tets = np.asarray(tets, dtype=np.int64)
+    if order == 1:
+        return tets, n_vertices
+    pairs = np.sort(tets[:, TET_EDGES], axis=2)  # (M, 6, 2)
+    keys = pairs[:, :, 0] * n_vertices + pairs[:, :, 1]
+    unique, edge_of = np.unique(keys.ravel(), return_inverse=True)
+    dofs = np.concatenate([tets, n_vertices + edge_of.reshape(-1, 6)], axis=1)
+    return dofs, n_vertices + len(unique)
+
+
+def _edges(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The edge vectors from vertex 0 (the columns of J), each as (3, M) component rows:
+    component-wise products then run on long contiguous arrays, 2x faster than np.cross
+    on (M, 3) (measured on 300k tets)."""
+    x = np.asarray(points, dtype=float).T
+    p0 = x[:, tets[:, 0]]
+    return x[:, tets[:, 1]] - p0, x[:, tets[:, 2]] - p0, x[:, tets[:, 3]] - p0
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Components of a × b for (3, M) rows."""
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+
+
+def jacobians(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse Jacobians ``(M, 3, 3)`` and signed volumes ``(M,)`` of affine tets."""
+    e0, e1, e2 = _edges(points, tets)
+    # Rows of J⁻¹ are the cofactor vectors e1×e2, e2×e0, e0×e1 over det J.
+    inv = np.empty((len(tets), 3, 3))
+    for row, (a, b) in enumerate(((e1, e2), (e2, e0), (e0, e1))):
+        inv[:, row, 0], inv[:, row, 1], inv[:, row, 2] = _cross(a, b)
+    det = e0[0] * inv[:, 0, 0] + e0[1] * inv[:, 0, 1] + e0[2] * inv[:, 0, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv /= det[:, None, None]
+    return inv, det / 6.0
+
+
+def volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes ``(M,)`` of affine tets (det J / 6), without the inverses."""
+    e0, e1, e2 = _edges(points, tets)
+    c0, c1, c2 = _cross(e1, e2)
+    return (e0[0] * c0 + e0[1] * c1 + e0[2] * c2) / 6.0
+
+
+def _cofactors(points: np.ndarray, tets: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """``det J · ∇λ_a`` for the four vertices, each as (3, M) component rows, and ``det J``.
+
+    The rows of ``J⁻¹`` are ∇λ1..3 = (e1×e2, e2×e0, e0×e1) / det J, and ∇λ0 = −(∇λ1 + ∇λ2 + ∇λ3).
+    """
+    e0, e1, e2 = _edges(points, tets)
+    c1, c2, c3 = (np.array(_cross(a, b)) for a, b in ((e1, e2), (e2, e0), (e0, e1)))
+    det = e0[0] * c1[0] + e0[1] * c1[1] + e0[2] * c1[2]
+    return [-(c1 + c2 + c3), c1, c2, c3], det
+
+
+@timed("assembly")
+def stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    """Element matrices ``coefficient · ∫ ∇N_i · ∇N_j`` for all tets, ``(M, nb, nb)``.
+
+    ``coefficient`` is ``(M,)``; volumes are taken as signed (callers reject inverted
+    tets)."""
+    if el.order == 1:
+        return _p1_stiffness(points, tets, coefficient)
+    return _tensor_stiffness(el, points, tets, coefficient)
+
+
+def _tensor_stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    """Any order: ``vol · A : S`` with the reference tensor ``S`` (module docstring)."""
+    nb = el.n_basis
+    out = np.empty((len(tets), nb, nb))
+    tensor = el.tensor.reshape(9, nb * nb)
+    for start in range(0, len(tets), BLOCK):
+        block = slice(start, start + BLOCK)
+        inv, vol = jacobians(points, tets[block])
+        metric = (inv @ inv.transpose(0, 2, 1)).reshape(-1, 9)  # A = J⁻¹ J⁻ᵀ
+        out[block] = ((metric * (coefficient[block] * vol)[:, None]) @ tensor).reshape(-1, nb, nb)
+    return out
+
+
+def _p1_stiffness(points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    """P1: ``c vol ∇λ_a · ∇λ_b = c (c_a · c_b) / (6 det J)`` with ``c_a = det J ∇λ_a``, on
+    component rows (1.9× the general path's speed, measured on 359k tets)."""
+    out = np.empty((len(tets), 4, 4))
+    for start in range(0, len(tets), BLOCK):
+        block = slice(start, start + BLOCK)
+        c, det = _cofactors(points, tets[block])
+        scale = coefficient[block] / (6.0 * det)
+        part = out[block]
+        for a in range(4):
+            for b in range(a, 4):
+                part[:, a, b] = part[:, b, a] = (c[a][0] * c[b][0] + c[a][1] * c[b][1] + c[a][2] * c[b][2]) * scale
+    return out
+
+
+@timed("assembly")
+def energy_vjp(el: Element, points: np.ndarray, tets: np.ndarray, dofs: np.ndarray,
+               coefficient: np.ndarray, fields: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Vertex gradient of ``Σ_ab W_ab Σ_e c_e φ_aᵀ K_e(x) φ_b`` at fixed fields.
+
+    Parameters
+    ----------
+    el
+        The element.
+    points
+        ``(N, 3)`` vertex positions.
+    tets, dofs
+        ``(M, 4)`` vertices and ``(M, nb)`` dofs of the elements to include.
+    coefficient
+        ``(M,)`` coefficient per element.
+    fields
+        ``(n_dofs, m)`` nodal values of ``m`` fields.
+    weights
+        ``(m, m)`` weights ``W``; only its symmetric part matters.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N, 3)`` derivative with respect to the vertex positions.
+    """
+    w = 0.5 * (weights + weights.T)
+    if fields.shape[1] == 0:
+        return np.zeros((len(points), 3))
+    if el.order == 1:
+        return _p1_energy_vjp(points, tets, coefficient, fields, w)
+    return _quadrature_energy_vjp(el, points, tets, dofs, coefficient, fields, w)
+
+
+def _quadrature_energy_vjp(el: Element, points: np.ndarray, tets: np.ndarray, dofs: np.ndarray,
+                           coefficient: np.ndarray, fields: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Any order: the module docstring's formula, point by point of the quadrature rule."""
+    nq, m = len(el.weights), fields.shape[1]
+    ref_rows = el.gradients.transpose(0, 2, 1).reshape(nq * 3, el.n_basis)  # rows (q, k)
+    out = np.zeros((len(points), 3))
+    for start in range(0, len(tets), BLOCK):
+        block = slice(start, start + BLOCK)
+        inv, vol = jacobians(points, tets[block])
+        ref = (ref_rows @ fields[dofs[block]]).reshape(-1, nq, 3, m)  # ĝ per point and field
+        grad = np.matmul(np.swapaxes(inv, 1, 2)[:, None], ref)  # g = J⁻ᵀ ĝ, (m_e, nq, 3, m)
+        mixed = (grad @ w) * el.weights[None, :, None, None]
+        t = np.einsum("eqif,eqjf->eij", grad, mixed, optimize=True)
+        g1 = _DLAMBDA @ inv  # P1 gradients ∇λ_a, (m_e, 4, 3)
+        trace = np.trace(t, axis1=1, axis2=2)
+        local_grad = (coefficient[block] * vol)[:, None, None] * (trace[:, None, None] * g1 - 2 * g1 @ t)
+        vertices = tets[block].ravel()
+        for c in range(3):
+            out[:, c] += np.bincount(vertices, weights=local_grad[:, :, c].ravel(), minlength=len(points))
+    return out
+
+
+def _p1_energy_vjp(points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray, fields: np.ndarray,
+                   w: np.ndarray) -> np.ndarray:
+    """:func:`energy_vjp` for P1 (one gradient per tet), on component rows with the fields
+    as rows ``(m, n_dofs)``: 2.7× the general path's speed (measured on 359k tets, 4 fields).
+
+    With ``c_a = det J ∇λ_a`` and ``det J · g = Σ_a φ_a c_a``, the vertex term
+    ``vol (tr(T) I − 2T) ∇λ_a`` is ``(tr(T') c_a − 2 T' c_a) / (6 det J²)`` where ``T'``
+    is ``T`` built from ``det J · g``.
+    """
+    out = np.zeros((3, len(points)))
+    rows = np.ascontiguousarray(fields.T)  # (m, n_dofs)
+    for start in range(0, len(tets), BLOCK):
+        block = slice(start, start + BLOCK)
+        vertex = tets[block]
+        c, det = _cofactors(points, vertex)
+        phi0 = rows[:, vertex[:, 0]]
+        d = [rows[:, vertex[:, a]] - phi0 for a in (1, 2, 3)]  # (m, B) each; Σ_a c_a = 0
+        grad = [d[0] * c[1][i] + d[1] * c[2][i] + d[2] * c[3][i] for i in range(3)]  # det J · g_i
+        mixed = [w @ g for g in grad]
+        t = np.empty((3, 3, len(det)))
+        for i in range(3):
+            for j in range(i, 3):
+                t[i, j] = t[j, i] = (grad[i] * mixed[j]).sum(axis=0)
+        trace = t[0, 0] + t[1, 1] + t[2, 2]
+        scale = coefficient[block] / (6.0 * det * det)
+        local = np.empty((3, 4, len(det)))
+        for a in range(4):
+            for i in range(3):
+                local[i, a] = (trace * c[a][i] - 2 * (t[i, 0] * c[a][0] + t[i, 1] * c[a][1] + t[i, 2] * c[a][2])) * scale
+        vertices = vertex.T.ravel()
+        for i in range(3):
+            out[i] += np.bincount(vertices, weights=local[i].ravel(), minlength=len(points))
+    return out.T

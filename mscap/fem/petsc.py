@@ -1,0 +1,174 @@
+"""All PETSc plumbing lives here: finding petsc4py, initialising it with options.
+
+Debian installs petsc4py under ``$PETSC_DIR/lib/python3/dist-packages`` and adds that to
+``sys.path`` through a ``.pth`` file only if ``PETSC_DIR`` is set when Python starts.
+:func:`petsc` makes this automatic: it finds the installed PETSc when ``PETSC_DIR`` is
+unset, so ``mscap``, ``pytest`` and ``mpirun`` work without any environment set-up.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import sys
+from typing import NamedTuple
+
+import numpy as np
+
+from mscap.errors import MscapError
+from mscap.fem.profile import section
+
+__all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "LinearSolver",
+           "LinearSolveError"]
+
+_DEBIAN_PETSC = "/usr/lib/petscdir/petsc*/*-real"
+
+
+class LinearSolveError(MscapError):
+    """A PETSc linear solve failed (factorisation breakdown, divergence)."""
+
+
+def find_petsc_dir() -> str | None:
+    """``PETSC_DIR`` if set, else the newest real-scalar Debian PETSc, else ``None``."""
+    if os.environ.get("PETSC_DIR"):
+        return os.environ["PETSC_DIR"]
+    candidates = sorted(glob.glob(_DEBIAN_PETSC))
+    return candidates[-1] if candidates else None
+
+
+def petsc(argv: list[str] | None = None):
+    """Initialise petsc4py once (with command-line ``argv``) and return ``PETSc``.
+
+    ``argv`` entries such as ``-electro_ksp_type cg`` go into the options database. The
+    first call initialises PETSc with them; a later call (a second command run in the
+    same process, as tests do) inserts its ``argv`` into the database.
+    """
+    global _command_line
+    if "petsc4py.PETSc" in sys.modules:
+        PETSc = sys.modules["petsc4py.PETSc"]
+        if argv:
+            PETSc.Options().insertString(" ".join(argv))
+            _command_line = _command_line | set(PETSc.Options().getAll())
+        return PETSc
+    petsc_dir = find_petsc_dir()
+    if petsc_dir:
+        os.environ.setdefault("PETSC_DIR", petsc_dir)
+        site = os.path.join(petsc_dir, "lib", "python3", "dist-packages")
+        if os.path.isdir(site) and site not in sys.path:
+            sys.path.append(site)
+    import petsc4py
+
+    petsc4py.init([sys.argv[0]] + list(argv or []))
+    from petsc4py import PETSc
+
+    _command_line = set(PETSc.Options().getAll())
+    return PETSc
+
+
+#: Default solver per options prefix. The command line (and a scene's [petsc] table)
+#: override these through KSP.setFromOptions, e.g. ``-electro_ksp_type cg``.
+DEFAULTS: dict[str, dict[str, str]] = {
+    "electro_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "cholmod"},
+    "elastic_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
+    "adjoint_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
+}
+
+_command_line: set[str] | None = None
+
+
+def set_scene_options(options) -> None:
+    """Put a scene's ``[petsc]`` entries (name, value) into the options database;
+    anything given on the command line wins."""
+    PETSc = petsc()
+    database = PETSc.Options()
+    for name, value in options:
+        if name not in _command_line:
+            database.setValue(name, value)
+
+
+class _Wrapped(NamedTuple):
+    """A PETSc AIJ matrix over CSR arrays it does not copy (keep them alive with it)."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    data: np.ndarray
+    mat: object
+
+
+class LinearSolver:
+    """A KSP with an options prefix and named defaults, and the PETSc matrix it factorises.
+
+    Parameters
+    ----------
+    prefix
+        Options prefix such as ``"electro_"``; defaults come from :data:`DEFAULTS`.
+    """
+
+    def __init__(self, prefix: str):
+        PETSc = petsc()
+        self.prefix = prefix
+        self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+        self.ksp.setOptionsPrefix(prefix)
+        defaults = DEFAULTS.get(prefix, {})
+        self.ksp.setType(defaults.get("ksp_type", "preonly"))
+        pc = self.ksp.getPC()
+        pc.setType(defaults.get("pc_type", "cholesky"))
+        if "pc_factor_mat_solver_type" in defaults:
+            pc.setFactorSolverType(defaults["pc_factor_mat_solver_type"])
+        self.ksp.setFromOptions()
+        self._own: _Wrapped | None = None  # the matrix set_csr made, and its arrays
+
+    def set_csr(self, matrix, spd: bool = False) -> None:
+        """Factorise the scipy CSR ``matrix`` (symmetric; ``spd`` tells PETSc it is positive
+        definite, as electrostatics are; elastic Hessians of compressed thin sheets can be
+        indefinite). While its pattern stays that of the previous call, the same PETSc matrix takes the new values and PETSc refactorises
+        numerically only, keeping the ordering and symbolic analysis (electrostatics on
+        359k tets: 0.18 → 0.13 s with CHOLMOD, 0.60 → 0.095 s with MUMPS)."""
+        csr = matrix.tocsr()
+        own = self._own
+        if own is None or own.data.shape != csr.data.shape or not (
+                np.array_equal(own.indptr, csr.indptr) and np.array_equal(own.indices, csr.indices)):
+            PETSc = petsc()
+            if own is not None:
+                own.mat.destroy()
+            arrays = (csr.indptr.astype(PETSc.IntType), csr.indices.astype(PETSc.IntType), csr.data.astype(float))
+            mat = PETSc.Mat().createAIJWithArrays(csr.shape, arrays, comm=PETSc.COMM_SELF)  # wraps, no copy
+            mat.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+            if spd:
+                mat.setOption(PETSc.Mat.Option.SPD, True)
+            own = self._own = _Wrapped(*arrays, mat)
+        else:
+            own.data[:] = csr.data
+            own.mat.assemble()  # bumps the matrix state: a numeric refactorisation follows
+        with section("factorisation"):
+            self.ksp.setOperators(own.mat)
+            self.ksp.setUp()
+
+    def solve(self, rhs):
+        """Solve for one right-hand side ``(n,)`` or several ``(n, m)`` columns."""
+        rhs = np.asarray(rhs, dtype=float)
+        columns = rhs.reshape(len(rhs), -1)
+        out = np.empty_like(columns)
+        b, x = self._own.mat.createVecLeft(), self._own.mat.createVecRight()
+        for j in range(columns.shape[1]):
+            b.setArray(columns[:, j])
+            with section("solve"):
+                self.ksp.solve(b, x)
+            reason = self.ksp.getConvergedReason()
+            if reason < 0:
+                raise LinearSolveError(f"{self.prefix}ksp diverged (reason {reason}) on right-hand side {j}")
+            out[:, j] = x.getArray()
+        return out.reshape(rhs.shape)
+
+    def destroy(self) -> None:
+        """Free the KSP (and the factorisation it holds) now rather than at exit."""
+        self.ksp.destroy()
+        if self._own is not None:
+            self._own.mat.destroy()
+        self._own = None
+
+    @property
+    def description(self) -> str:
+        pc = self.ksp.getPC()
+        solver = pc.getFactorSolverType() if pc.getType() in ("cholesky", "lu") else ""
+        return f"{self.ksp.getType()}/{pc.getType()}" + (f"/{solver}" if solver else "")

@@ -1,0 +1,1 @@
+"""Planar geometry of the sheet (mm): polygon kernels, capacitor layouts, initial layouts."""

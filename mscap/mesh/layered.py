@@ -1,0 +1,208 @@
+"""The layered sensor mesh: the 2D triangulation extruded through the 5-layer stack.
+
+Vertex numbering is ``level * n2 + v`` for 2D vertex ``v`` on level ``level`` (level 0
+is the bottom surface), so the 3D → (2D vertex, level) map is pure arithmetic.
+
+Each prism is cut into 3 tets by the global-vertex-index rule: every quad side face is
+split by the diagonal through its smallest-index vertex. Two prisms sharing a side face
+see the same four vertices, so they cut it the same way and the tet mesh conforms
+(Porumbescu et al. 2005, cited in paper §4.1). With the triangle's vertices sorted
+a < b < c, the smallest vertex of each side face is its lower-left one, which gives the
+three tets below.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mscap.mesh.triangulate import TriMesh
+from mscap.fem.profile import timed
+
+__all__ = ["LayeredMesh", "extrude", "mesh_scene", "mesh_elastic", "level_heights", "layer_fractions",
+           "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
+
+#: Layer indices (bottom to top) of the two conductive layers.
+BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER = 1, 3
+CONDUCTIVE_LAYERS = (BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER)
+
+# Local tets of a prism whose bottom triangle is (a, b, c), a < b < c, and whose top is
+# (a', b', c'): indices 0..2 bottom, 3..5 top. The side faces' diagonals a-b', b-c', a-c'
+# all start at the smaller bottom vertex. Orientation is fixed afterwards.
+_PRISM_TETS = np.array([[0, 1, 2, 5], [0, 1, 5, 4], [0, 3, 4, 5]])
+
+
+@dataclass(frozen=True)
+class LayeredMesh:
+    """Tetrahedral mesh of the sensor.
+
+    Attributes
+    ----------
+    mesh2d
+        The triangulation that was extruded.
+    level_z_mm
+        ``(L + 1,)`` heights of the vertex levels, bottom surface first.
+    points
+        ``(N, 3)`` rest positions, ``N = (L + 1) * n2``.
+    tets
+        ``(M, 4)`` positively oriented vertex indices.
+    layer_of_tet
+        ``(M,)`` stack layer 0..4, bottom to top.
+    capacitor_of_tet
+        ``(M,)`` capacitor index for conductor tets (inside an outline, in a conductive
+        layer), -1 elsewhere.
+    triangle_of_tet
+        ``(M,)`` the 2D triangle the tet was extruded from.
+    """
+
+    mesh2d: TriMesh
+    level_z_mm: np.ndarray
+    points: np.ndarray
+    tets: np.ndarray
+    layer_of_tet: np.ndarray
+    capacitor_of_tet: np.ndarray
+    triangle_of_tet: np.ndarray
+
+    def __post_init__(self):
+        for name in ("level_z_mm", "points", "tets", "layer_of_tet", "capacitor_of_tet", "triangle_of_tet"):
+            getattr(self, name).setflags(write=False)
+
+    @property
+    def n_capacitors(self) -> int:
+        return int(self.mesh2d.capacitor_of_triangle.max()) + 1
+
+    @property
+    def vertex_2d(self) -> np.ndarray:
+        """``(N,)`` the 2D vertex each 3D vertex sits above."""
+        return np.arange(len(self.points)) % len(self.mesh2d.points)
+
+    @property
+    def vertex_level(self) -> np.ndarray:
+        """``(N,)`` the level of each 3D vertex (0 = bottom surface)."""
+        return np.arange(len(self.points)) // len(self.mesh2d.points)
+
+    def volumes(self, points: np.ndarray | None = None) -> np.ndarray:
+        """Signed tet volumes (mm³) at ``points`` (default: rest positions)."""
+        return tet_volumes(self.points if points is None else points, self.tets)
+
+
+def layer_fractions(mesh: LayeredMesh, thicknesses_mm) -> np.ndarray:
+    """``(M, n_layers)`` exact volume fraction of each stack layer inside each tet.
+
+    A tet of an extruded mesh has its vertices on the two levels of its slab, ``k`` of
+    them on the lower one. Its cross-section at ``s = (z − z_lo)/(z_hi − z_lo)`` is a
+    triangle shrinking to the top (k = 3), a parallelogram ∝ s(1 − s) (k = 2) or a triangle
+    growing from the bottom (k = 1), so the volume fraction below ``s`` is 1 − (1 − s)³,
+    3s² − 2s³ or s³. Slabs between layer interfaces give one-hot rows.
+    """
+    z = mesh.points[mesh.tets, 2]
+    lo, hi = z.min(axis=1), z.max(axis=1)
+    k = np.sum(np.isclose(z, lo[:, None], rtol=0, atol=1e-12 * max(1.0, float(hi.max()))), axis=1)
+    interfaces = np.concatenate([[0.0], np.cumsum(np.asarray(thicknesses_mm, dtype=float))])
+    s = np.clip((interfaces[None, :] - lo[:, None]) / (hi - lo)[:, None], 0.0, 1.0)  # (M, L + 1)
+    below = np.select([k[:, None] == 3, k[:, None] == 2], [1 - (1 - s) ** 3, s * s * (3 - 2 * s)], s ** 3)
+    return np.diff(below, axis=1)
+
+
+def tet_values(mesh: LayeredMesh, layers, value) -> np.ndarray:
+    """``value(material)`` of every tet, ``(M,)`` or ``(M, ...)``: the layer's material
+    inside a plate, its ``fill`` (conductive layers) or material elsewhere. A tet that
+    spans several layers (an elastic mesh coarser than the stack) gets the volume-weighted
+    mean, which for a constant-strain (P1) tet and an energy linear in the material
+    constants is its exact energy.
+
+    ``layers`` are :class:`mscap.scene.settings.Layer` objects, bottom to top."""
+    from mscap.errors import MeshError
+
+    if len(layers) <= mesh.layer_of_tet.max():
+        raise MeshError(f"{len(layers)} layers given for a mesh with {mesh.layer_of_tet.max() + 1}")
+    plate = np.array([value(layer.material) for layer in layers])
+    fill = np.array([value(layer.fill or layer.material) for layer in layers])
+    fractions = layer_fractions(mesh, [layer.thickness_mm for layer in layers])
+    inside = mesh.mesh2d.capacitor_of_triangle[mesh.triangle_of_tet] >= 0
+    return np.where(inside.reshape((-1,) + (1,) * (plate.ndim - 1)),
+                    np.tensordot(fractions, plate, axes=1), np.tensordot(fractions, fill, axes=1))
+
+
+def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes of the tets ``(M, 4)`` at ``points`` (positive: right-handed)."""
+    p = points[tets]
+    return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) / 6.0
+
+
+def level_heights(thicknesses_mm, elements_per_layer: int) -> tuple[np.ndarray, np.ndarray]:
+    """Heights of the vertex levels and the layer of each slab between two levels."""
+    thicknesses = np.asarray(thicknesses_mm, dtype=float)
+    fractions = np.arange(elements_per_layer) / elements_per_layer
+    bottoms = np.concatenate([[0.0], np.cumsum(thicknesses)[:-1]])
+    z = (bottoms[:, None] + fractions[None, :] * thicknesses[:, None]).ravel()
+    # The top level is the exact sum, so layer volumes are exact to round-off.
+    z = np.append(z, np.sum(thicknesses))
+    return z, np.repeat(np.arange(len(thicknesses)), elements_per_layer)
+
+
+def extrude(mesh2d: TriMesh, thicknesses_mm, elements_per_layer: int = 1,
+            slabs: int | None = None) -> LayeredMesh:
+    """Extrude ``mesh2d`` through layers of the given thicknesses (bottom to top).
+
+    With ``slabs``, the levels split the whole stack evenly instead of following the
+    layer interfaces (an elastic mesh; ``layer_of_tet`` is then the layer at the slab's
+    middle and :func:`layer_fractions` gives the exact mix)."""
+    z, layer_of_slab = level_heights(thicknesses_mm, elements_per_layer)
+    if slabs is not None:
+        z = np.linspace(0.0, z[-1], slabs + 1)
+        z[-1] = np.sum(thicknesses_mm)
+        interfaces = np.cumsum(thicknesses_mm)[:-1]
+        layer_of_slab = np.searchsorted(interfaces, 0.5 * (z[1:] + z[:-1]))
+    n2, n_slabs = len(mesh2d.points), len(layer_of_slab)
+    points = np.empty((len(z), n2, 3))
+    points[:, :, :2] = mesh2d.points[None]
+    points[:, :, 2] = z[:, None]
+    points = points.reshape(-1, 3)
+
+    tri = np.sort(mesh2d.triangles, axis=1)
+    slab = np.arange(n_slabs)[:, None, None]
+    prism = np.concatenate([tri[None] + slab * n2, tri[None] + (slab + 1) * n2], axis=2)  # (S, T, 6)
+    tets = prism[:, :, _PRISM_TETS].reshape(-1, 4)  # slab-major, then triangle, then local tet
+    n_tri = len(tri)
+    triangle_of_tet = np.tile(np.repeat(np.arange(n_tri), 3), n_slabs)
+    layer_of_tet = np.repeat(layer_of_slab, 3 * n_tri)
+
+    negative = tet_volumes(points, tets) < 0
+    tets[negative] = tets[negative][:, [0, 2, 1, 3]]
+
+    capacitor_of_tet = mesh2d.capacitor_of_triangle[triangle_of_tet].copy()
+    capacitor_of_tet[~np.isin(layer_of_tet, CONDUCTIVE_LAYERS)] = -1
+    return LayeredMesh(mesh2d, z, points, tets, layer_of_tet, capacitor_of_tet, triangle_of_tet)
+
+
+@timed("meshing")
+def mesh_scene(scene) -> LayeredMesh:
+    """Triangulate a :class:`~mscap.scene.settings.Scene`'s sheet and layout, then extrude it."""
+    from mscap.mesh.triangulate import triangulate
+
+    mesh2d = triangulate(scene.sheet_outline_mm, scene.layout, scene.mesh)
+    return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer)
+
+
+@timed("meshing")
+def mesh_elastic(scene, mesh: LayeredMesh) -> LayeredMesh:
+    """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
+    "shared"``, else a triangulation with the same outlines embedded, so every tet lies
+    inside or outside a plate, at ``edge_length_mm`` (outlines: ``edge_length_outline_mm``,
+    default half), extruded in ``elements_through_thickness`` even slabs (0: the levels of
+    ``mesh``)."""
+    from dataclasses import replace
+
+    from mscap.mesh.triangulate import triangulate
+
+    settings = scene.elastic
+    if settings.mesh == "shared":
+        return mesh
+    h = settings.edge_length_mm
+    outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
+    mesh2d = triangulate(scene.sheet_outline_mm, scene.layout,
+                         replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline))
+    return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
+                   slabs=settings.elements_through_thickness or None)

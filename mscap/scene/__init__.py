@@ -1,0 +1,1 @@
+"""The scene: settings dataclasses, the TOML loader and its checks, poses, calibration settings."""

@@ -1,0 +1,263 @@
+"""Virtual calibration: the scene's ``[calibration]`` section, its pose family and the
+noise model (paper §6 and appendix A).
+
+A calibration varies some parameters of one *template* pose of the scene: a training set
+on a grid (Cartesian product of ``[start, stop, count]`` ranges) and an evaluation
+sequence along a piecewise-linear path through waypoints, which may leave the training
+ranges (out-of-distribution poses). The reconstruction targets are the posed object's
+vertex positions for a glue pose (design-independent, what the paper's per-vertex error
+measures) or the pose parameters themselves.
+
+Noise (appendix A): per run, every capacitor's reading is scaled by a factor drawn
+uniformly in 1 ± ``relative_shift`` (0.15); per pose and capacitor, an offset drawn
+uniformly in ± ``additive_pF`` (2 pF) is added; ``runs`` (100) seeded runs. With a
+``reference`` pose, each run also reads that pose once (same shift, its own offset) and
+every read-out is divided by it, capacitor by capacitor, as a sensor is tared at the
+start of a session: the per-run shift then cancels but for the offsets.
+
+Scene keys::
+
+    [calibration]
+    pose = "flex_30"                  # the template: a pose of the scene
+    target = "vertices"               # or "parameters" (default: vertices for glue poses)
+    reference = "rest"                # optional: read-outs divided by this pose's, read once per run
+    kernel = "thin_plate_spline"      # scipy.interpolate.RBFInterpolator kernel
+    smoothing = 0.0
+    [calibration.training]            # parameter = [start, stop, count]; grid of all
+    flexion_deg = [-30.0, 30.0, 7]
+    deviation_deg = [-20.0, 20.0, 5]
+    [calibration.sequence]            # waypoints (same count per parameter), `steps` per leg
+    steps = 6
+    flexion_deg = [0.0, 30.0, -40.0]
+    deviation_deg = [0.0, 20.0, 0.0]
+    [calibration.noise]
+    relative_shift = 0.15
+    additive_pF = 2.0
+    runs = 100
+    seed = 0
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from mscap.scene._toml import Table
+
+__all__ = ["NoiseModel", "CalibrationSettings", "read_calibration", "family_poses", "pose_parameters",
+           "TARGETS"]
+
+TARGETS = ("vertices", "parameters")
+KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "multiquadric",
+           "inverse_multiquadric", "inverse_quadratic", "gaussian")
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Measurement noise of a capacitance read-out (paper appendix A)."""
+
+    relative_shift: float = 0.15
+    additive_pF: float = 2.0
+    runs: int = 100
+    seed: int = 0
+
+    def __post_init__(self):
+        from mscap.errors import MscapError
+
+        if not 0 <= self.relative_shift < 1:
+            raise MscapError(f"noise: relative shift must be in [0, 1), got {self.relative_shift}")
+        if not self.additive_pF >= 0:
+            raise MscapError(f"noise: additive noise must be >= 0 pF, got {self.additive_pF}")
+        if self.runs < 1:
+            raise MscapError(f"noise: runs must be >= 1, got {self.runs}")
+
+    @property
+    def additive_std_pF(self) -> float:
+        """Standard deviation of the uniform ± ``additive_pF`` offset."""
+        return self.additive_pF / 3**0.5
+
+    def draw(self, rng: np.random.Generator, n_poses: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per-run factors ``(runs, 1, k)`` and per-pose offsets ``(runs, n_poses, k)`` (pF)."""
+        factor = rng.uniform(1.0 - self.relative_shift, 1.0 + self.relative_shift, (self.runs, 1, k))
+        offset = rng.uniform(-self.additive_pF, self.additive_pF, (self.runs, n_poses, k))
+        return factor, offset
+
+    def apply(self, capacitance_pF: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+        """``(runs, n_poses, k)`` noisy read-outs of the clean ``(n_poses, k)`` table;
+        ``rng`` defaults to one seeded with ``seed``."""
+        c = np.asarray(capacitance_pF, dtype=float)
+        factor, offset = self.draw(rng or np.random.default_rng(self.seed), *c.shape)
+        return c[None] * factor + offset
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationSettings:
+    """A scene's ``[calibration]``: the template pose, the varied parameters and their
+    training grid ``(n_train, n_par)`` and evaluation sequence ``(n_seq, n_par)``,
+    whether a sequence pose lies inside the training ranges, the reference pose (read
+    once per run; the read-outs are divided by it) or ``None``, the RBF settings and the
+    noise model."""
+
+    pose: str
+    parameters: tuple[str, ...]
+    training: np.ndarray
+    sequence: np.ndarray
+    in_range: np.ndarray
+    target: str = "vertices"
+    reference: str | None = None
+    kernel: str = "thin_plate_spline"
+    smoothing: float = 0.0
+    noise: NoiseModel = NoiseModel()
+
+    def family_sha256(self) -> str:
+        """Identifies the simulated family (cached capacitances are valid while it holds)."""
+        h = hashlib.sha256(repr((self.pose, self.parameters)).encode())
+        h.update(np.ascontiguousarray(self.training).tobytes())
+        h.update(np.ascontiguousarray(self.sequence).tobytes())
+        return h.hexdigest()
+
+
+def pose_parameters(pose) -> dict[str, float]:
+    """The float parameters a calibration may vary: a glue pose's float generator
+    parameters, or a pose's float fields (``depth_mm``, ``radius_mm``, ...)."""
+    if pose.kind == "glue":
+        return {k: v for k, v in pose.generator_parameters if isinstance(v, float)}
+    return {f.name: getattr(pose, f.name) for f in fields(pose)
+            if isinstance(getattr(pose, f.name), float)}
+
+
+def family_poses(template, parameters: tuple[str, ...], values: np.ndarray, prefix: str) -> tuple:
+    """Copies of ``template`` with ``parameters`` set to each row of ``values``, named
+    ``prefix_0``, ``prefix_1``, ..."""
+    poses = []
+    for i, row in enumerate(np.asarray(values, dtype=float)):
+        update = dict(zip(parameters, (float(x) for x in row)))
+        if template.kind == "glue":
+            generator = dict(template.generator_parameters) | update
+            pose = replace(template, name=f"{prefix}_{i}", generator_parameters=tuple(generator.items()))
+        else:
+            pose = replace(template, name=f"{prefix}_{i}", **update)
+        poses.append(pose)
+    return tuple(poses)
+
+
+def read_calibration(t: Table | None, poses: tuple) -> CalibrationSettings | None:
+    """Read ``[calibration]`` (``None`` when the scene has none).
+
+    Raises
+    ------
+    SceneError
+        Naming the key: an unknown template pose or parameter, a bad range or waypoint
+        list, lists of different lengths, an unknown kernel or target, bad noise values.
+    """
+    if t is None:
+        return None
+    by_name = {p.name: p for p in poses}
+    name = t.get("pose", str)
+    if name not in by_name:
+        raise t.error("pose", f"no pose named {name!r}; poses: {', '.join(by_name) or 'none'}")
+    template = by_name[name]
+    variable = pose_parameters(template)
+    if not variable:
+        raise t.error("pose", f"pose {name!r} ({template.kind}) has no number parameters to vary")
+    target = t.get("target", str, "vertices" if template.kind == "glue" else "parameters")
+    if target not in TARGETS:
+        raise t.error("target", f"unknown value {target!r}; expected one of {', '.join(TARGETS)}")
+    if target == "vertices" and template.kind != "glue":
+        raise t.error("target", f"'vertices' needs a glue pose (an object to reconstruct); "
+                      f"pose {name!r} is a {template.kind} pose: use 'parameters'")
+    reference = t.get("reference", str, None)
+    if reference is not None and reference not in by_name:
+        raise t.error("reference", f"no pose named {reference!r}; poses: {', '.join(by_name)}")
+    kernel = t.get("kernel", str, "thin_plate_spline")
+    if kernel not in KERNELS:
+        raise t.error("kernel", f"unknown RBF kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
+    smoothing = t.get("smoothing", float, 0.0, minimum=0.0)
+
+    training_t = t.table("training")
+    names = tuple(training_t.data)
+    if not names:
+        raise training_t.error("", "give at least one parameter = [start, stop, count]")
+    axes = []
+    for p in names:
+        if p not in variable:
+            raise training_t.error(p, f"pose {name!r} has no number parameter {p!r}; "
+                                   f"it has: {', '.join(variable)}")
+        spec = training_t.get(p, list)
+        if (len(spec) != 3 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in spec)
+                or not isinstance(spec[2], int) or spec[2] < 1):
+            raise training_t.error(p, f"expected [start, stop, count] with an integer count >= 1, got {spec!r}")
+        axes.append(np.linspace(float(spec[0]), float(spec[1]), spec[2]))
+    training_t.finish()
+    training = np.array(list(itertools.product(*axes)), dtype=float)
+
+    seq_t = t.table("sequence")
+    steps = seq_t.get("steps", int, 1, minimum=1)
+    waypoints = []
+    for p in names:
+        values = seq_t.get(p, list)
+        if not values or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values):
+            raise seq_t.error(p, f"expected a list of numbers (waypoints), got {values!r}")
+        waypoints.append(np.array(values, dtype=float))
+    extra = [key for key in seq_t.data if key not in names and key != "steps"]
+    if extra:
+        raise seq_t.error(extra[0], f"not a parameter of [calibration.training] ({', '.join(names)})")
+    lengths = {len(w) for w in waypoints}
+    if len(lengths) != 1:
+        raise seq_t.error(names[0], "every parameter needs the same number of waypoints; got "
+                          + ", ".join(f"{p}: {len(w)}" for p, w in zip(names, waypoints)))
+    sequence = _path(np.column_stack(waypoints), steps)
+    lo, hi = training.min(axis=0), training.max(axis=0)
+    span = np.maximum(hi - lo, 1.0)
+    in_range = np.all((sequence >= lo - 1e-9 * span) & (sequence <= hi + 1e-9 * span), axis=1)
+
+    noise_t = t.table("noise", required=False)
+    noise = NoiseModel()
+    if noise_t is not None:
+        relative_shift = noise_t.get("relative_shift", float, 0.15, minimum=0.0)
+        if relative_shift >= 1.0:
+            raise noise_t.error("relative_shift", f"must be < 1, got {relative_shift!r}")
+        noise = NoiseModel(relative_shift=relative_shift,
+                           additive_pF=noise_t.get("additive_pF", float, 2.0, minimum=0.0),
+                           runs=noise_t.get("runs", int, 100, minimum=1),
+                           seed=noise_t.get("seed", int, 0, minimum=0))
+        noise_t.finish()
+    t.finish()
+    _check_family(t, template, names, training, sequence)
+    return CalibrationSettings(pose=name, parameters=names, training=training, sequence=sequence,
+                               in_range=in_range, target=target, reference=reference, kernel=kernel,
+                               smoothing=smoothing,
+                               noise=noise)
+
+
+def _path(waypoints: np.ndarray, steps: int) -> np.ndarray:
+    """``steps`` evenly spaced points per leg of the polyline, then the last waypoint."""
+    if len(waypoints) == 1:
+        return waypoints.copy()
+    s = np.arange(steps) / steps
+    legs = [a + s[:, None] * (b - a) for a, b in zip(waypoints[:-1], waypoints[1:])]
+    return np.vstack(legs + [waypoints[-1:]])
+
+
+def _check_family(t: Table, template, names, training, sequence) -> None:
+    """Every family member is a valid pose: generator parameters in range (one call on
+    the extremes of each set), checked here so a bad range fails at load time."""
+    if template.kind != "glue" or template.object.generator is None:
+        return
+    from mscap.bodies.registry import GENERATORS, ParameterError
+
+    function = GENERATORS[template.object.generator]
+    uv = template.object.rest.uv
+    for which, values in (("training", training), ("sequence", sequence)):
+        for row in values:
+            kwargs = dict(template.generator_parameters) | dict(zip(names, row))
+            try:
+                posed = function(uv, 1.0, **kwargs)
+            except ParameterError as exc:
+                raise t.error(f"{which}.{exc.parameter}", f"at {dict(zip(names, row.round(6)))}: {exc}") from None
+            if not np.isfinite(posed).all():
+                raise t.error(which, f"generator {template.object.generator!r} gives non-finite "
+                              f"positions at {dict(zip(names, row.round(6)))}")

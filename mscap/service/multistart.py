@@ -1,0 +1,169 @@
+"""The multi-start service: many optimisation starts farmed out over MPI, one HDF5 file.
+
+Rank 0 is the master: it opens the store (:mod:`mscap.service.store`), lists the start
+configurations the file does not hold yet (:func:`mscap.service.selection.configurations`) and
+hands them out one at a time; every other rank is a worker that runs one start
+(:func:`run_start`) on ``PETSc.COMM_SELF`` and sends back a :class:`~mscap.service.store.RunRecord`.
+Scheduling is dynamic — a worker gets the next configuration as soon as it returns one —
+and only the master writes, flushing after every run, so a killed job loses at most the
+runs in flight. With one rank (no ``mpirun``) the master runs every start itself.
+
+A start's result depends only on the scene and its (k, seed, init): never on the rank,
+the number of ranks or the order in which runs finish. A start that raises is stored as
+failed with its error text; the others go on. SIGTERM (what SLURM sends at the time
+limit) and Ctrl-C stop the master from handing out more work; it records what finished,
+writes the selection and aborts the workers still busy.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+import traceback
+from dataclasses import replace
+from typing import Callable
+
+from mscap.service.accuracy import estimate_error
+from mscap.design.readback import ReconstructionBound
+from mscap.service.farm import TAGS, Stop, farm, release, serve
+from mscap.service.selection import StartConfig, configurations, select
+from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
+    write_selection
+
+__all__ = ["TAGS", "run_start", "run_multistart"]
+
+log = logging.getLogger(__name__)
+
+def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None):
+    """Run one start and return its :class:`~mscap.service.store.RunRecord` (failed, with the
+    error text, if anything in it raises)."""
+    from mscap.design.pipeline import build_design
+    from mscap.geometry.initial import initial_layout
+    from mscap.design.optimizer import optimize
+
+    start = time.perf_counter()
+    try:
+        layout = initial_layout(scene, config.k, config.seed, config.init)
+        design = build_design(replace(scene, layout=layout))
+        scene = design.scene  # its design poses (mscap.design.readback.design_scene)
+        result = optimize(design, max_iterations=max_iterations)
+        record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
+                                    time.perf_counter() - start, rank)
+        if scene.design_family is not None:
+            bound = ReconstructionBound(scene.design_family, scene.optimizer.tau_mm)
+            record = replace(record, bound_mm=bound.value(record.final_capacitance_pF),
+                             initial_bound_mm=bound.value(record.initial_capacitance_pF))
+        final = result.layout
+        del design, result  # the finer mesh's check below should not add to the design's memory
+    except Exception as exc:  # a failed start is a result, not a crash of the job
+        log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
+        return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
+                             time.perf_counter() - start, rank)
+    if not scene.multistart.error_estimate:
+        return record
+    try:
+        check = estimate_error(scene, final, record.final_capacitance_pF)
+    except Exception as exc:  # the run stands; only its accuracy is unknown
+        log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
+                    config.id, type(exc).__name__, exc)
+        return record
+    return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s)
+
+
+def run_multistart(scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
+                   select_configs: Callable[[StartConfig], bool] | None = None,
+                   max_iterations: int | None = None,
+                   progress: Callable[[str], None] | None = None) -> dict | None:
+    """Run every start of ``scene`` not yet in the file ``path``.
+
+    Parameters
+    ----------
+    comm
+        An mpi4py communicator (default ``MPI.COMM_WORLD``); rank 0 is the master.
+    force
+        Start the file over even if it holds another scene's runs.
+    retry_failed
+        Run the starts stored as failed again (their groups are replaced).
+    select_configs
+        Keep only the configurations for which this returns True (k range, seed range).
+    max_iterations
+        Override the scene's ``[optimizer] max_iterations`` (tests, quick runs).
+    progress
+        Called by the master with one line per finished run.
+
+    Returns the master's summary ``{"runs_done", "runs_failed", "stopped"}`` on rank 0,
+    ``None`` on workers.
+    """
+    if comm is None:
+        from mpi4py import MPI
+
+        comm = MPI.COMM_WORLD
+    if comm.Get_rank() != 0:
+        _worker(scene, comm, max_iterations)
+        return None
+    return _master(scene, path, comm, force, retry_failed, select_configs, max_iterations,
+                   progress or (lambda m: None))
+
+
+def _worker(scene, comm, max_iterations) -> None:
+    rank = comm.Get_rank()
+    serve(comm, lambda config: run_start(scene, config, rank, max_iterations))
+
+
+def _master(scene, path, comm, force, retry_failed, select_configs, max_iterations, say) -> dict:
+    size = comm.Get_size()
+    try:
+        store = open_store(path, scene, mpi_size=size, force=force)
+    except Exception:
+        release(comm)  # let the workers go before the error reaches main()
+        raise
+    stop = Stop()
+    done = failed = 0
+    try:
+        finished = finished_ids(store, failed=not retry_failed)
+        todo = [c for c in configurations(scene)
+                if c.id not in finished and (select_configs is None or select_configs(c))]
+        # Longest first: a start's cost grows with k, and handing out the big ones first
+        # leaves the short ones to fill the tail (jobs/quick.toml on 2 workers: busy
+        # fraction 0.88 → 0.94, docs/performance.md §4). Results do not depend on the order.
+        todo.sort(key=lambda c: -c.k)
+        total, started = len(todo), time.perf_counter()
+        say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
+            f"worker{'s' if size > 2 else ''}")
+
+        def record(rec) -> None:
+            nonlocal done, failed
+            write_run(store, rec)
+            done += 1
+            failed += not rec.ok
+            elapsed = time.perf_counter() - started
+            eta = elapsed / done * (total - done)
+            metric = f"{rec.metric:.4g} pF" if rec.ok else rec.error.splitlines()[0][:80]
+            if rec.ok and math.isfinite(rec.bound_mm):
+                metric += f", read-back bound {rec.initial_bound_mm:.3g} -> {rec.bound_mm:.3g} mm"
+            if rec.ok and math.isfinite(rec.error_estimate):
+                metric += f" (finer mesh: C within {100 * rec.error_estimate:.2g} %)"
+            say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
+                f"{total - done} left, ETA {eta:.0f} s")
+
+        if size == 1:
+            for config in todo:
+                if stop.requested:
+                    break
+                record(run_start(scene, config, 0, max_iterations))
+        else:
+            farm(comm, todo, record, stop)
+    except KeyboardInterrupt:
+        stop.requested = True
+    finally:
+        stop.restore()
+        selection = select(run_summaries(store), scene.multistart.plateau_tol,
+                           range(scene.multistart.k_min, scene.multistart.k_max + 1))
+        write_selection(store, selection)
+        store.close()
+    if stop.requested and size > 1:
+        say("stopped: the finished runs are stored; rerun the same command to complete the rest")
+        comm.Abort(0)  # workers busy with a start cannot be interrupted otherwise
+    return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested}
+

@@ -1,0 +1,160 @@
+"""Start configurations of the multi-start service and the choice of k (paper §5.1).
+
+``configurations(scene)`` lists every (k, seed, init) the service runs; ``select`` picks
+the best run per k and the number of capacitors k. Both depend on nothing but their
+arguments, so any process (master, worker, ``mscap inspect``) gets the same answer.
+The rule is documented in ``docs/hdf5.md`` ("Selection").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+__all__ = ["StartConfig", "RunSummary", "KSummary", "Selection", "INITS", "MAX_STARTS_PER_K",
+           "run_id", "configurations", "choose_k", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
+
+#: Initial-layout rules of the multi-start service (see ``mscap.geometry.initial``).
+INITS = ("lloyd", "random")
+
+#: Seeds are ``base · 10⁶ + k · 10³ + index``, so the index must stay below 10³.
+MAX_STARTS_PER_K = 1000
+
+#: One-line statement of the k rule, stored beside the choice in ``/selection``.
+SELECTION_RULE = ("chosen k = smallest k with a successful run such that no larger k with a successful "
+                  "run has a best metric above (1 + plateau_tol) * m(k)")
+#: The rule when the runs carry a read-back bound (design poses from the calibration family).
+SELECTION_RULE_BOUND = ("best run per k = smallest read-back bound b; chosen k = smallest k with a successful "
+                        "run such that no larger k has a best bound below b(k) / (1 + plateau_tol)")
+
+
+def run_id(k: int, seed: int, init: str) -> str:
+    """The name of a run, e.g. ``k3_s3007_lloyd`` (also its HDF5 group name)."""
+    return f"k{k}_s{seed:04d}_{init}"
+
+
+@dataclass(frozen=True)
+class StartConfig:
+    """One start: ``k`` capacitors, initial layout from ``init`` with ``seed``."""
+
+    k: int
+    seed: int
+    init: str
+
+    @property
+    def id(self) -> str:
+        return run_id(self.k, self.seed, self.init)
+
+
+def configurations(scene) -> list[StartConfig]:
+    """Every start of the scene's multi-start, ordered by k then index.
+
+    For each k in ``k_min..k_max``, ``starts_per_k`` starts: the first
+    ``ceil(lloyd_fraction · starts_per_k)`` use Lloyd layouts, the rest random ones. Start
+    ``index`` of ``k`` gets ``seed = multistart.seed · 10⁶ + k · 10³ + index``: a function
+    of the scene and (k, index) only — never of the rank, the number of ranks or the order
+    in which runs finish.
+    """
+    ms = scene.multistart
+    n = ms.starts_per_k
+    if not 0 <= n < MAX_STARTS_PER_K:
+        from mscap.errors import SceneError
+
+        raise SceneError(scene.path, "multistart.starts_per_k",
+                         f"must be in 0..{MAX_STARTS_PER_K - 1}, got {n!r}")
+    # round() first: 0.2 * 25 is 5.000000000000001 in floating point and must give 5.
+    n_lloyd = min(n, math.ceil(round(ms.lloyd_fraction * n, 9)))
+    return [StartConfig(k, ms.seed * 1_000_000 + k * 1000 + index, "lloyd" if index < n_lloyd else "random")
+            for k in range(ms.k_min, ms.k_max + 1) for index in range(n)]
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """What selection needs of one stored run; ``metric`` (pF) is the final min pairwise
+    L1 distance, NaN when the run failed."""
+
+    id: str
+    k: int
+    ok: bool
+    metric: float
+    wall_s: float
+    bound_mm: float = math.nan
+
+
+@dataclass(frozen=True)
+class KSummary:
+    """Runs of one k: counts, the best successful run (``None`` if none) and the summed
+    wall time (s)."""
+
+    k: int
+    runs_ok: int
+    runs_failed: int
+    best_metric: float | None
+    best_run: str | None
+    wall_s: float
+    best_bound_mm: float | None = None
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Per-k summaries (ascending k), the chosen k and its best run (``None`` when no run
+    succeeded), and whether a larger k was available to confirm the plateau."""
+
+    per_k: tuple[KSummary, ...]
+    chosen_k: int | None
+    chosen_run: str | None
+    plateau_tol: float
+    plateau_reached: bool
+    runs_total: int
+    by_bound: bool = False
+
+
+def choose_k(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) -> int | None:
+    """The smallest k beyond which the metric no longer grows by more than ``plateau_tol``.
+
+    Among the k whose metric is finite (k without a successful run are skipped), returns
+    the smallest k such that every larger k' has ``m(k') ≤ (1 + plateau_tol) · m(k)``.
+    Comparing with *every* larger k, not only the next, keeps a flat step in a rising
+    curve from stopping the search early; looking only for gains makes drops after the
+    plateau (more capacitors, each smaller, noisier optimisation) harmless. The largest
+    valid k always qualifies, so the result is ``None`` only if no metric is finite.
+    """
+    pairs = sorted((k, m) for k, m in zip(ks, metrics) if m is not None and math.isfinite(m))
+    for i, (k, m) in enumerate(pairs):
+        if all(later <= (1.0 + plateau_tol) * m for _, later in pairs[i + 1:]):
+            return k
+    return None
+
+
+def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[int] = ()) -> Selection:
+    """Best run per k (largest metric; ties go to the smallest id) and the chosen k.
+
+    When every successful run carries a finite read-back bound (design poses from the
+    calibration family, :mod:`mscap.design.readback`), the best run per k is the one with the
+    smallest bound and the plateau rule runs on its precision 1/bound: the smallest k
+    that no larger k beats by more than ``plateau_tol``. ``k_values`` adds rows for k
+    without any run (e.g. the scene's ``k_min..k_max``).
+    """
+    runs = list(runs)
+    ks = sorted(set(k_values) | {r.k for r in runs})
+    good = [r for r in runs if r.ok and math.isfinite(r.metric)]
+    by_bound = bool(good) and all(math.isfinite(r.bound_mm) and r.bound_mm > 0 for r in good)
+    score = (lambda r: 1.0 / r.bound_mm) if by_bound else (lambda r: r.metric)
+    per_k = []
+    for k in ks:
+        mine = [r for r in runs if r.k == k]
+        ok = [r for r in good if r.k == k]
+        best = min(ok, key=lambda r: (-score(r), r.id)) if ok else None
+        per_k.append(KSummary(k=k, runs_ok=len(ok), runs_failed=len(mine) - len(ok),
+                              best_metric=None if best is None else best.metric,
+                              best_run=None if best is None else best.id,
+                              wall_s=float(sum(r.wall_s for r in mine)),
+                              best_bound_mm=None if best is None or not by_bound else best.bound_mm))
+    best_of = {s.k: next(r for r in good if r.id == s.best_run) for s in per_k if s.best_run is not None}
+    chosen = choose_k(list(best_of), [score(r) for r in best_of.values()], plateau_tol)
+    chosen_run = next((s.best_run for s in per_k if s.k == chosen), None)
+    valid = [s.k for s in per_k if s.best_run is not None]
+    return Selection(per_k=tuple(per_k), chosen_k=chosen, chosen_run=chosen_run, plateau_tol=plateau_tol,
+                     plateau_reached=chosen is not None and chosen < max(valid), runs_total=len(runs),
+                     by_bound=by_bound)

@@ -1,0 +1,138 @@
+"""The design pipeline (mscap.design.pipeline): Taylor tests of the whole J(q) — dissimilarity of
+the pose capacitances through the elastic adjoints, the barrier and the smoothing, all
+through the skinning control — on coarse stretch, poke and glue scenes, once stiff
+(ν = 0.499) and once at 100 % stretch; the elastic weights are the interpolated ones.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import numpy as np
+import pytest
+
+from mscap.design.pipeline import build_design, min_pairwise_l1
+from mscap.scene.settings import load_scene
+from tests.conftest import to_toml
+from tests.fem.test_adjoint import glue_scene
+from tests.fem.test_elastic import poke_scene_dict, scene_dict
+
+pytest.importorskip("igl")
+
+REST = {"name": "rest", "kind": "free"}
+
+
+def stretch(ratio=1.2, nu=None):
+    data = scene_dict(poses=[REST, {"name": "pull", "kind": "stretch", "mode": "uniaxial",
+                                    "stretch": ratio, "grips": "clamp"}],
+                      mesh={"edge_length_mm": 3.0, "edge_length_outline_mm": 1.0, "grading_distance_mm": 3.0})
+    if nu is not None:
+        for material in data["materials"].values():
+            material["poisson_ratio"] = nu
+    return data
+
+
+def glue():
+    data = glue_scene(1)
+    data["poses"] = [REST] + data["poses"]
+    return data
+
+
+SCENES = {
+    "stretch": stretch,
+    "poke": poke_scene_dict,
+    "glue": glue,
+    "stiff": lambda: stretch(1.2, 0.499),
+    "extreme": lambda: stretch(2.0),
+    # d in read-out noise units of read-outs tared against the rest pose
+    # (readback.ProtocolDissimilarity; the calibration section names the protocol)
+    "glue_noise": lambda: glue() | {"optimizer": {"distance": "noise", "tau_noise": 0.01},
+                                    "calibration": {"pose": "bent", "reference": "rest",
+                                                    "training": {"radius_mm": [15.0, 30.0, 4]},
+                                                    "sequence": {"radius_mm": [18.0, 28.0]}}},
+    # the read-back bound over a family of three bends, tared against the rest pose, with
+    # the plate-area barrier active (the plate is ~50 mm², the budget 54 mm²)
+    "glue_readback": lambda: glue() | {
+        "optimizer": {"distance": "reconstruction", "design_poses": "family", "family_grid": 3,
+                      "tau_mm": 0.05, "max_plate_area_mm2": 54.0},
+        "calibration": {"pose": "bent", "reference": "rest", "training": {"radius_mm": [15.0, 30.0, 4]},
+                        "sequence": {"radius_mm": [18.0, 28.0]}}},
+}
+
+
+def load(data, tmp_path_factory, name):
+    path = tmp_path_factory.mktemp("design") / f"{name}.toml"
+    data = copy.deepcopy(data)
+    data.setdefault("optimizer", {})["control_spacing_mm"] = 6.0
+    path.write_text(to_toml(data))
+    scene = load_scene(path)
+    # A tight Newton tolerance: the differences below resolve J to ~1e-12.
+    return dataclasses.replace(scene, elastic=dataclasses.replace(scene.elastic, tolerance=1e-12))
+
+
+@pytest.fixture(scope="module", params=list(SCENES))
+def design(request, tmp_path_factory):
+    scene = load(SCENES[request.param](), tmp_path_factory, request.param)
+    return request.param, build_design(scene)
+
+
+def test_elastic_weights_follow_the_fine_blend(design):
+    name, d = design
+    # The elastic mesh's 2D vertices move with the fine mesh's P1 blend: exact at shared
+    # points (outline corners) and zero on the sheet edge.
+    weights = d.elastic_weights
+    assert weights is not None and weights.shape[1] == d.n_controls
+    el = d.base.elastic.mesh.mesh2d.points
+    lo, hi = el.min(axis=0), el.max(axis=0)
+    edge = (np.abs(el - lo) < 1e-9).any(axis=1) | (np.abs(el - hi) < 1e-9).any(axis=1)
+    assert np.abs(weights[edge]).max() < 1e-9
+    assert weights.min() > -1e-12 and weights.sum(axis=1).max() < 1 + 1e-9
+
+
+def test_whole_objective_taylor_and_central_differences(design):
+    name, d = design
+    rng = np.random.default_rng(5)
+    q0 = 0.05 * rng.uniform(-1, 1, (d.n_controls, 2))
+    base = d.evaluate(q0)
+    grad = d.gradient(base)
+    delta = rng.uniform(-1, 1, grad.shape)
+    slope = float(np.vdot(grad, delta))
+
+    def J(h):
+        return d.evaluate(q0 + h * delta, warm=base).J
+
+    steps = 0.02 / 2.0 ** np.arange(5)
+    remainders = np.array([abs(J(h) - base.J - h * slope) for h in steps])
+    rates = np.log2(remainders[:-1] / remainders[1:])
+    # The noise distance saturates once the poses differ by many noise widths (a pose pair's
+    # z² tends to its bound C_ref²/Var), so its J is more curved than its slope: the
+    # remainder at the smallest step is ~9 % of the first-order change there, at rate 2.
+    relative = 0.15 if name == "glue_noise" else 0.05
+    assert remainders[-1] < relative * abs(steps[-1] * slope), (name, remainders, slope)
+    np.testing.assert_allclose(rates, 2.0, atol=0.2, err_msg=f"{name}: {remainders}")
+    h = 2e-5
+    central = (J(h) - J(-h)) / (2 * h)
+    assert slope == pytest.approx(central, rel=1e-5), name
+
+
+def test_min_pairwise_l1():
+    c = np.array([[1.0, 2.0], [1.5, 2.0], [4.0, 0.0]])
+    assert min_pairwise_l1(c) == pytest.approx(0.5)
+
+
+def test_bad_optimizer_settings_name_the_key(tmp_path_factory):
+    from mscap.errors import SceneError
+
+    scene = load(stretch(), tmp_path_factory, "bad")
+    bad = dataclasses.replace(scene, optimizer=dataclasses.replace(scene.optimizer, skinning="nope"))
+    with pytest.raises(SceneError, match="optimizer.skinning"):
+        build_design(bad)
+    bad = dataclasses.replace(scene, optimizer=dataclasses.replace(scene.optimizer, first_step_mm=0.0))
+    with pytest.raises(SceneError, match="optimizer.first_step_mm"):
+        build_design(bad)
+    bad = dataclasses.replace(scene, optimizer=dataclasses.replace(scene.optimizer, distance="nF"))
+    with pytest.raises(SceneError, match="optimizer.distance: unknown value 'nF'"):
+        build_design(bad)
+    with pytest.raises(SceneError, match="at least 2"):
+        build_design(dataclasses.replace(scene, poses=scene.poses[:1]))

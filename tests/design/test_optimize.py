@@ -1,0 +1,161 @@
+"""The optimiser (mscap.design.optimizer): the exact triangle step bound, the feasible step, the
+two-loop recursion, outline resampling, and a short run on a coarse poke scene with a
+forced remesh and a cascade level, through the command line."""
+
+from __future__ import annotations
+
+import copy
+import csv
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from mscap.geometry import polygons as geometry
+from mscap.cli import main
+from mscap.design.pipeline import build_design
+from mscap.geometry.layout import check_layout
+from mscap.design.optimizer import (HISTORY_FIELDS, _LBFGS, feasible_step, max_step_triangles, optimize, remesh,
+                            resample_outline)
+from mscap.scene.settings import load_scene
+from tests.conftest import grid_trimesh, to_toml
+from tests.fem.test_elastic import scene_dict
+
+pytest.importorskip("igl")
+
+
+def test_triangle_bound_is_exact():
+    mesh = grid_trimesh(6, 5, 6.0, 5.0, lambda c: -np.ones(len(c)), jitter=0.2)
+    v = np.random.default_rng(0).normal(size=mesh.points.shape)
+
+    def area(x):
+        e = x[mesh.triangles[:, 1:]] - x[mesh.triangles[:, :1]]
+        return 0.5 * (e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0])
+
+    a0 = area(mesh.points)
+    alpha = max_step_triangles(mesh.points, mesh.triangles, v, keep=0.1)
+    assert 0 < alpha < 1
+    ratio = area(mesh.points + alpha * v) / a0
+    # The binding triangle sits exactly at a tenth of its area; none below it on [0, α].
+    assert ratio.min() == pytest.approx(0.1, rel=1e-9)
+    for s in np.linspace(0, alpha, 50):
+        assert (area(mesh.points + s * v) / a0).min() >= 0.1 - 1e-9
+    assert max_step_triangles(mesh.points, mesh.triangles, 0 * v) == 1.0
+
+
+def test_two_loop_recursion_is_the_bfgs_inverse_update():
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(4, 4))
+    hessian = a @ a.T + 4 * np.eye(4)
+    memory = _LBFGS(size=8)
+    pairs = [(s, hessian @ s) for s in rng.normal(size=(6, 4))]
+    for s, y in pairs:
+        memory.push(s, y)
+    # Dense BFGS: H0 = (sᵀy / yᵀy) I of the newest pair, then each pair in turn.
+    s, y = pairs[-1]
+    inverse = (s @ y) / (y @ y) * np.eye(4)
+    for s, y in pairs:
+        rho = 1.0 / (y @ s)
+        left = np.eye(4) - rho * np.outer(s, y)
+        inverse = left @ inverse @ left.T + rho * np.outer(s, s)
+    g = rng.normal(size=4)
+    np.testing.assert_allclose(memory.direction(g), -inverse @ g, rtol=1e-10)
+    np.testing.assert_allclose(-memory.direction(pairs[-1][1]), pairs[-1][0], rtol=1e-10)  # secant
+    memory.push(-s, y)  # negative curvature: skipped
+    assert len(memory.pairs) == 6
+
+
+def test_resampling_keeps_corners_and_spacing():
+    square = geometry.square((5.0, 5.0), 4.0)
+    fine = resample_outline(square, 0.5)
+    assert len(fine) == 32
+    assert all((np.abs(fine - c).sum(axis=1) < 1e-12).any() for c in square)
+    np.testing.assert_allclose(np.linalg.norm(np.roll(fine, -1, axis=0) - fine, axis=1), 0.5)
+
+
+POKES = {"name": "poke_cross", "sheet": {"width_mm": 40.0, "height_mm": 30.0},
+         "capacitors": {"min_gap_mm": 1.0, "outlines_mm": [[[8.0, 9.0], [18.0, 9.0], [18.0, 21.0], [8.0, 21.0]],
+                                                          [[22.0, 9.0], [32.0, 9.0], [32.0, 21.0], [22.0, 21.0]]]},
+         "mesh": {"edge_length_mm": 4.0, "edge_length_outline_mm": 1.0, "grading_distance_mm": 2.0},
+         "poses": [{"name": f"p{i}", "kind": "poke", "center_mm": c, "radius_mm": 4.0, "depth_mm": 2.0,
+                    "held_edges": ["x_min", "x_max"]}
+                   for i, c in enumerate([[20.0, 11.0], [20.0, 19.0], [15.0, 15.0]])],
+         "optimizer": {"control_spacing_mm": 8.0, "max_iterations": 3, "cascade_levels": 1,
+                       }}
+
+
+@pytest.fixture(scope="module")
+def poke_scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("optimize") / "pokes.toml"
+    path.write_text(to_toml(scene_dict(**copy.deepcopy(POKES))))
+    return path
+
+
+def test_feasible_step_never_overlaps_or_inverts(poke_scene):
+    design = build_design(load_scene(poke_scene))
+    q = design.deformer.zeros()
+    # Push capacitor 0 bodily into capacitor 1 (and through it): the step stops short.
+    p = np.where((design.deformer.control_outline == 0)[:, None], [30.0, 0.0], 0.0)
+    alpha = feasible_step(design, q, p)
+    assert 0 < alpha < 1
+    layout = design.deformer.layout(q + alpha * p)
+    check_layout(layout, design.scene.sheet_outline_mm, design.scene.min_gap_mm)
+    assert (design.deformer.mesh2d.areas() > 0).all()
+    moved = design.deformer.points2d(q + alpha * p)
+    assert (dataclasses.replace(design.deformer.mesh2d, points=moved).areas() > 0).all()
+
+
+def test_optimize_decreases_J_with_remesh_and_cascade(poke_scene):
+    scene = load_scene(poke_scene)
+    result = optimize(build_design(scene))
+    events = [r.event for r in result.history]
+    assert events[0] == "start" and "cascade" in events and events[-1] in ("max_iterations", "converged")
+    steps = [r for r in result.history if r.event == "step"]
+    assert len(steps) >= 3
+    for before, after in zip(result.history, result.history[1:]):
+        if after.event == "step":
+            assert after.J < before.J
+    assert result.evaluation.min_l1_pF > result.initial.min_l1_pF
+    check_layout(result.layout, scene.sheet_outline_mm, scene.min_gap_mm)
+
+
+def test_remesh_keeps_the_outlines_and_warm_starts(poke_scene):
+    design = build_design(load_scene(poke_scene))
+    rng = np.random.default_rng(2)
+    q = 0.4 * rng.uniform(-1, 1, (design.n_controls, 2))
+    q *= feasible_step(design, design.deformer.zeros(), q)
+    e = design.evaluate(q)
+    new, warm = remesh(design, e)
+    # The new outlines are polygons through points of the old ones (every 1 mm here, the
+    # half elastic outline edge), so the old outlines lie within the chordal error.
+    for old, polygon, chain in zip(design.deformer.outlines(q), new.scene.layout.outlines,
+                                   new.deformer.outlines(new.deformer.zeros())):
+        assert geometry.point_segment_distance(polygon, geometry.edges(old)).min(axis=1).max() < 1e-9
+        assert geometry.point_segment_distance(old, geometry.edges(chain)).min(axis=1).max() < 0.05
+    cold = new.evaluate(new.deformer.zeros())
+    hot = new.evaluate(new.deformer.zeros(), warm=warm)
+    # Measured: 3–5 Newton iterations per pose warm, about 3× that cold.
+    assert sum(hot.newton_iterations) < 0.6 * sum(cold.newton_iterations)
+    np.testing.assert_allclose(hot.capacitance_pF, cold.capacitance_pF, rtol=1e-9)
+    # A new mesh of the same geometry: capacitances move by the discretisation only.
+    np.testing.assert_allclose(hot.capacitance_pF, e.capacitance_pF, rtol=0.02)
+
+
+def test_command_writes_every_output(poke_scene, tmp_path, capsys):
+    out = tmp_path / "run"
+    status = main(["optimize", str(poke_scene), "--max-iterations", "1", "--cascade", "0", "-o", str(out), "-q"])
+    assert status == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("k", "seed", "init", "iterations", "time_s", "initial_min_l1_pF", "final_min_l1_pF",
+                "capacitance_pF"):
+        assert key in summary
+    assert summary["k"] == 2 and summary["init"] == "scene" and len(summary["capacitance_pF"]) == 3
+    with open(out / "history.csv") as f:
+        rows = list(csv.reader(f))
+    assert tuple(rows[0]) == HISTORY_FIELDS and len(rows) >= 3
+    outlines = json.loads((out / "outlines.json").read_text())["outlines_mm"]
+    assert len(outlines) == 2
+    assert (out / "layout.png").stat().st_size > 10_000
+    assert (out / "capacitance.csv").read_text().count("\n") == 1 + 2 * 3
+    assert "min pairwise L1" in capsys.readouterr().out

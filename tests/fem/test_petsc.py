@@ -1,0 +1,82 @@
+"""PETSc plumbing: found without PETSC_DIR; defaults < scene options < command line."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def run_python(code: str, env_drop=("PETSC_DIR",)) -> str:
+    env = {k: v for k, v in os.environ.items() if k not in env_drop}
+    result = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], env=env,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    return result.stdout
+
+
+def test_petsc_found_without_petsc_dir():
+    out = run_python("""
+        from mscap.fem.petsc import petsc
+        print(petsc().Sys.getVersion()[0])
+    """)
+    assert out.strip() == "3"
+
+
+def test_option_precedence():
+    """A scene option overrides the default; the command line overrides the scene."""
+    out = run_python("""
+        from mscap.fem.petsc import petsc, set_scene_options, LinearSolver
+        petsc(["-electro_pc_factor_mat_solver_type", "petsc"])
+        set_scene_options([("electro_pc_factor_mat_solver_type", "mumps"),
+                           ("electro_ksp_type", "cg"), ("electro_pc_type", "jacobi")])
+        print(LinearSolver("electro_").description)
+    """)
+    assert out.strip() == "cg/jacobi"
+    out = run_python("""
+        from mscap.fem.petsc import petsc, set_scene_options, LinearSolver
+        petsc(["-electro_pc_factor_mat_solver_type", "petsc"])
+        set_scene_options([("electro_pc_factor_mat_solver_type", "mumps")])
+        print(LinearSolver("electro_").description)
+    """)
+    assert out.strip() == "preonly/cholesky/petsc"
+
+
+def test_linear_solver_many_rhs():
+    from mscap.fem.petsc import LinearSolver
+
+    n = 200
+    a = sp.diags([-np.ones(n - 1), 2.5 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsr()
+    solver = LinearSolver("electro_")
+    solver.set_csr(a, spd=True)
+    b = np.random.default_rng(0).normal(size=(n, 3))
+    x = solver.solve(b)
+    np.testing.assert_allclose(a @ x, b, atol=1e-12)
+    np.testing.assert_allclose(solver.solve(b[:, 0]), x[:, 0], atol=1e-14)
+
+
+def test_set_csr_refactorises_new_values_on_the_same_matrix():
+    """Same pattern: the PETSc matrix is kept (symbolic factorisation reused) and the new
+    values are factorised; a new pattern gets a new matrix."""
+    from mscap.fem.petsc import LinearSolver
+
+    n = 200
+    rng = np.random.default_rng(1)
+    b = rng.normal(size=(n, 2))
+    solver = LinearSolver("electro_")
+    matrices = []
+    for diagonal in (2.5, 4.0, 3.0):
+        a = sp.diags([-np.ones(n - 1), diagonal * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsr()
+        solver.set_csr(a, spd=True)
+        matrices.append(solver._own.mat)
+        np.testing.assert_allclose(a @ solver.solve(b), b, atol=1e-12)
+    assert matrices[0] is matrices[1] is matrices[2]
+    wider = sp.diags([-np.ones(n - 2), 3.0 * np.ones(n), -np.ones(n - 2)], [-2, 0, 2]).tocsr()
+    solver.set_csr(wider, spd=True)
+    assert solver._own.mat is not matrices[0]
+    np.testing.assert_allclose(wider @ solver.solve(b), b, atol=1e-12)
+    solver.destroy()

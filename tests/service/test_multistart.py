@@ -1,0 +1,254 @@
+"""The multi-start service: ``mpirun -n N mscap run`` on a tiny scene (coarse mesh, three
+poses, k ∈ {2, 3}, two starts each, two L-BFGS iterations per level)."""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mscap.service.store import finished_ids, read_run, read_store
+from tests.conftest import SMALL_SCENE, to_toml
+
+MSCAP = str(Path(sys.executable).with_name("mscap"))
+ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+           OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1")
+needs_mpirun = pytest.mark.skipif(shutil.which("mpirun") is None, reason="no mpirun (make installs openmpi-bin)")
+
+
+def tiny_scene() -> dict:
+    data = copy.deepcopy(SMALL_SCENE)
+    data["mesh"] = {"edge_length_mm": 4.0, "edge_length_outline_mm": 1.0, "grading_distance_mm": 2.0}
+    data["elastic"] = {"edge_length_mm": 6.0}
+    data["poses"] = [
+        {"name": "left", "kind": "poke", "center_mm": [10.0, 10.0], "radius_mm": 4.0, "depth_mm": 2.0,
+         "held_edges": ["x_min", "x_max"]},
+        {"name": "right", "kind": "poke", "center_mm": [20.0, 10.0], "radius_mm": 4.0, "depth_mm": 2.0,
+         "held_edges": ["x_min", "x_max"]},
+        {"name": "pull", "kind": "stretch", "mode": "uniaxial", "stretch": 1.2, "grips": "roller"}]
+    data["multistart"] = {"k_min": 2, "k_max": 3, "starts_per_k": 2}
+    return data
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("multistart") / "tiny.toml"
+    path.write_text(to_toml(tiny_scene()))
+    return path
+
+
+def mscap_run(n: int, scene: Path, out: Path, *extra, timeout: float = 300) -> subprocess.CompletedProcess:
+    command = [MSCAP, "run", str(scene), "-o", str(out), "--max-iterations", "2", *extra]
+    if n > 1:
+        command = ["mpirun", "-n", str(n), "--oversubscribe", *command]
+    return subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def three_ranks(scene_file, tmp_path_factory):
+    if shutil.which("mpirun") is None:
+        pytest.skip("no mpirun")
+    out = tmp_path_factory.mktemp("n3") / "results.h5"
+    done = mscap_run(3, scene_file, out)
+    assert done.returncode == 0, done.stderr
+    return out, done
+
+
+@needs_mpirun
+def test_three_ranks_write_a_complete_file(three_ranks, capsys):
+    from mscap.cli import main
+
+    out, done = three_ranks
+    store = read_store(out)
+    assert finished_ids(store) == {"k2_s2000_lloyd", "k2_s2001_random", "k3_s3000_lloyd", "k3_s3001_random"}
+    ranks = {read_run(store, rid).rank for rid in finished_ids(store)}
+    assert ranks <= {1, 2} and ranks  # the master only schedules and writes
+    store.close()
+    # One progress line per run, on stderr. The largest k is handed out first (one k = 3
+    # start per worker), so no k = 2 start can finish before a k = 3 one.
+    progress = [line for line in done.stderr.splitlines() if line.startswith("[")]
+    assert len(progress) == 4 and progress[0].startswith("[1/4] k3_")
+    assert main(["inspect", str(out), "--json"]) == 0
+    table = json.loads(capsys.readouterr().out)
+    assert table["runs_total"] == 4 and table["chosen_k"] in (2, 3)
+    assert [row["k"] for row in table["per_k"]] == [2, 3]
+    assert all(row["runs_ok"] == 2 and row["runs_failed"] == 0 for row in table["per_k"])
+    assert all(0 < row["best_error_estimate"] < 0.3 for row in table["per_k"])
+    assert main(["inspect", str(out), "--runs"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[:3] == ["run", "status", "its"] and len(lines) == 5 and "%" in lines[1]
+
+
+@needs_mpirun
+def test_every_run_stores_its_finer_mesh_check(three_ranks, scene_file):
+    """The stored check is the final layout simulated on ``finer(scene)``."""
+    from dataclasses import replace
+
+    from mscap.service.accuracy import finer, relative_difference
+    from mscap.geometry.layout import Layout
+    from mscap.scene.settings import load_scene
+    from mscap.fem.simulate import simulate
+
+    out, _ = three_ranks
+    scene = load_scene(scene_file)
+    with read_store(out) as store:
+        record = read_run(store, "k2_s2000_lloyd")
+    layout = Layout(tuple(record.final_outlines))
+    fine = simulate(replace(finer(scene), layout=layout)).capacitance_pF
+    np.testing.assert_allclose(record.finer_capacitance_pF, fine, rtol=1e-9)
+    assert record.error_estimate == pytest.approx(relative_difference(record.final_capacitance_pF, fine), rel=1e-9)
+    assert record.error_estimate_wall_s > 0 and record.finer_metric_pF > 0
+
+
+@needs_mpirun
+def test_results_do_not_depend_on_the_number_of_ranks(three_ranks, scene_file, tmp_path):
+    out3, _ = three_ranks
+    out2 = tmp_path / "n2.h5"
+    done = mscap_run(2, scene_file, out2, "-q")
+    assert done.returncode == 0, done.stderr
+    a, b = read_store(out3), read_store(out2)
+    assert finished_ids(a) == finished_ids(b)
+    for rid in finished_ids(a):
+        ra, rb = read_run(a, rid), read_run(b, rid)
+        # Measured: identical to the last bit.
+        np.testing.assert_allclose(rb.final_capacitance_pF, ra.final_capacitance_pF, rtol=1e-10, atol=0)
+        for pa, pb in zip(ra.final_outlines, rb.final_outlines):
+            np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-10)
+
+
+@needs_mpirun
+def test_a_different_scene_is_refused_without_hanging_the_workers(three_ranks, tmp_path):
+    out, _ = three_ranks
+    other = tiny_scene()
+    other["multistart"]["starts_per_k"] = 3
+    path = tmp_path / "other.toml"
+    path.write_text(to_toml(other))
+    done = mscap_run(2, path, out, timeout=120)
+    assert done.returncode != 0
+    assert "mscap: error:" in done.stderr and str(out) in done.stderr
+
+
+def test_an_interrupted_job_resumes_with_only_the_missing_runs(scene_file, tmp_path, monkeypatch):
+    # One process (no mpirun): the master runs every start itself. The first call stops
+    # after k = 2 (as a job killed then would have stored); the rerun does only k = 3.
+    from mpi4py import MPI
+
+    from mscap.service import multistart
+    from mscap.scene.settings import load_scene
+
+    scene = load_scene(scene_file)
+    out = tmp_path / "resume.h5"
+    lines = []
+    first = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1,
+                                      select_configs=lambda c: c.k == 2, progress=lines.append)
+    assert first == {"runs_done": 2, "runs_failed": 0, "stopped": False}
+    store = read_store(out)
+    before = {rid: read_run(store, rid).wall_s for rid in finished_ids(store)}
+    store.close()
+    ran = []
+    real = multistart.run_start
+    monkeypatch.setattr(multistart, "run_start", lambda s, c, *a, **k: ran.append(c.id) or real(s, c, *a, **k))
+    second = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1, progress=lines.append)
+    assert second["runs_done"] == 2 and sorted(ran) == ["k3_s3000_lloyd", "k3_s3001_random"]
+    assert "2 runs already stored, 2 to do" in lines[-3]
+    store = read_store(out)
+    assert len(finished_ids(store)) == 4
+    assert {rid: read_run(store, rid).wall_s for rid in before} == before  # not redone
+
+
+def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_path, monkeypatch):
+    from mpi4py import MPI
+
+    from mscap.design import pipeline as design
+
+    from mscap.service import multistart
+    from mscap.errors import MeshError
+    from mscap.scene.settings import load_scene
+
+    real = design.build_design
+
+    def build(scene, **kwargs):
+        if scene.layout.k == 3:
+            raise MeshError("gmsh failed to mesh the sheet (forced by the test)")
+        return real(scene, **kwargs)
+    monkeypatch.setattr(design, "build_design", build)
+    out = tmp_path / "fail.h5"
+    summary = multistart.run_multistart(load_scene(scene_file), str(out), MPI.COMM_SELF, max_iterations=1)
+    assert summary == {"runs_done": 4, "runs_failed": 2, "stopped": False}
+    store = read_store(out)
+    failed = read_run(store, "k3_s3000_lloyd")
+    assert failed.status == "failed" and "MeshError: gmsh failed to mesh the sheet (forced" in failed.error
+    assert read_run(store, "k2_s2000_lloyd").ok
+    store.close()
+    # A plain rerun skips the failed runs; --retry-failed runs exactly those again.
+    monkeypatch.setattr(design, "build_design", real)
+    scene = load_scene(scene_file)
+    assert multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1)["runs_done"] == 0
+    again = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1, retry_failed=True)
+    assert again == {"runs_done": 2, "runs_failed": 0, "stopped": False}
+    store = read_store(out)
+    assert all(read_run(store, rid).ok for rid in finished_ids(store)) and len(finished_ids(store)) == 4
+
+
+def session_members(sid: int) -> list[int]:
+    """Live processes of session ``sid`` (zombies, already dead, left out)."""
+    members = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rindex(")") + 2:].split()  # state, ppid, pgrp, session, ...
+            if int(fields[3]) == sid and fields[0] != "Z":
+                members.append(int(entry.name))
+    return members
+
+
+def signal_session(sid: int, signum: int) -> None:
+    for pid in session_members(sid):
+        try:
+            os.kill(pid, signum)
+        except ProcessLookupError:
+            pass
+
+
+@needs_mpirun
+@pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGKILL"])
+def test_a_killed_job_leaves_a_readable_file_and_the_rerun_completes_it(scene_file, tmp_path, signal_name):
+    # SIGTERM is what SLURM sends at the time limit; SIGKILL is `kill -9` of the whole job.
+    import signal
+    import time
+
+    out = tmp_path / "killed.h5"
+    command = ["mpirun", "-n", "3", "--oversubscribe", MSCAP, "run", str(scene_file), "-o", str(out),
+               "--max-iterations", "2"]
+    job = subprocess.Popen(command, env=ENV, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    for line in job.stderr:  # wait for the first stored run
+        if line.startswith("[1/"):
+            break
+    # mpirun puts every rank in a process group of its own, in mpirun's session: signal the
+    # whole session, as SLURM signals every process of a job step, and wait until it is gone.
+    signal_session(job.pid, getattr(signal, signal_name))
+    job.communicate(timeout=60)
+    deadline = time.monotonic() + 60
+    while session_members(job.pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not session_members(job.pid), "ranks outlived the killed job"
+    store = read_store(out)  # opens after any kill
+    before = {rid: read_run(store, rid).wall_s for rid in finished_ids(store)}
+    store.close()
+    assert 1 <= len(before) <= 4
+    done = mscap_run(3, scene_file, out)
+    assert done.returncode == 0, done.stderr
+    assert f"{len(before)} runs already stored, {4 - len(before)} to do" in done.stderr
+    store = read_store(out)
+    assert len(finished_ids(store)) == 4
+    assert {rid: read_run(store, rid).wall_s for rid in before} == before

@@ -1,0 +1,141 @@
+"""Start configurations and the choice of k (docs/hdf5.md, "Selection")."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+
+from mscap.errors import SceneError
+from mscap.scene.settings import load_scene
+from mscap.service.selection import RunSummary, StartConfig, choose_k, configurations, run_id, select
+
+TOL = 0.05
+
+
+@pytest.fixture
+def scene(small_scene_dict, write_scene):
+    small_scene_dict["multistart"] = {"k_min": 2, "k_max": 4, "starts_per_k": 5, "lloyd_fraction": 0.2}
+    return load_scene(write_scene(small_scene_dict))
+
+
+def test_configurations(scene):
+    configs = configurations(scene)
+    assert len(configs) == 3 * 5
+    assert [c.k for c in configs] == [2] * 5 + [3] * 5 + [4] * 5
+    for k in (2, 3, 4):
+        mine = [c for c in configs if c.k == k]
+        assert [c.init for c in mine] == ["lloyd"] + ["random"] * 4  # ceil(0.2 · 5) = 1
+        assert [c.seed for c in mine] == [k * 1000 + i for i in range(5)]
+    assert len({c.id for c in configs}) == len(configs)
+    assert configs[0] == StartConfig(2, 2000, "lloyd") and configs[0].id == "k2_s2000_lloyd"
+
+
+@pytest.mark.parametrize("n, fraction, n_lloyd", [(25, 0.2, 5), (2, 0.2, 1), (3, 0.5, 2), (4, 0.0, 0),
+                                                   (4, 1.0, 4), (10, 0.3, 3), (0, 0.2, 0)])
+def test_lloyd_count_rounds_up(scene, n, fraction, n_lloyd):
+    ms = replace(scene.multistart, k_min=3, k_max=3, starts_per_k=n, lloyd_fraction=fraction)
+    configs = configurations(replace(scene, multistart=ms))
+    assert [c.init for c in configs] == ["lloyd"] * n_lloyd + ["random"] * (n - n_lloyd)
+
+
+def test_configurations_depend_only_on_the_scene(small_scene_dict, write_scene, scene):
+    """Same scene text, other path: same list; a k range that overlaps gives the same
+    starts for the shared k (seeds are a function of (k, index), not of the position in
+    the list); the scene's multistart.seed shifts every seed."""
+    again = load_scene(write_scene({**small_scene_dict, "multistart": {"k_min": 2, "k_max": 4, "starts_per_k": 5,
+                                                                      "lloyd_fraction": 0.2}}, "copy.toml"))
+    assert configurations(again) == configurations(scene)
+    narrower = replace(scene, multistart=replace(scene.multistart, k_min=3))
+    assert configurations(narrower) == [c for c in configurations(scene) if c.k >= 3]
+    shifted = configurations(replace(scene, multistart=replace(scene.multistart, seed=7)))
+    assert [c.seed - 7_000_000 for c in shifted] == [c.seed for c in configurations(scene)]
+
+
+def test_too_many_starts(scene):
+    with pytest.raises(SceneError, match="starts_per_k"):
+        configurations(replace(scene, multistart=replace(scene.multistart, starts_per_k=1000)))
+
+
+def test_run_id():
+    assert run_id(3, 7, "lloyd") == "k3_s0007_lloyd" and run_id(12, 123456, "random") == "k12_s123456_random"
+
+
+# ------------------------------------------------------------------ choose_k on constructed curves
+@pytest.mark.parametrize("name, metrics, chosen", [
+    ("rising", [1, 2, 3, 4, 5], 6),                     # never flattens: the largest k
+    ("plateau", [1, 2, 3, 3.05, 3.1], 4),               # 3.1 ≤ 1.05 · 3
+    ("plateau then late gain", [1, 2, 2.02, 2.05, 3], 6),  # a flat step is not a plateau
+    ("falling", [5, 4, 3, 2, 1], 2),                    # more capacitors never help
+    ("noisy plateau", [1, 2, 2.9, 3.0, 2.95], 4),       # 3.0 ≤ 1.05 · 2.9
+    ("noisy drop after plateau", [1, 2, 3, 2.2, 3.1], 4),  # a dip below does not matter
+    ("gain just over tol", [2, 2.1001], 3),
+    ("gain exactly tol", [2, 2.1], 2),
+    ("single k", [1.7], 2),
+    ("flat zero", [0, 0, 0], 2),
+])
+def test_choose_k(name, metrics, chosen):
+    ks = list(range(2, 2 + len(metrics)))
+    assert choose_k(ks, metrics, TOL) == chosen, name
+
+
+def test_choose_k_noisy_random_curves():
+    """On saturating curves with multiplicative noise below tol/2, the choice lies on the
+    plateau: m(chosen) is within tol of the best m."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    ks = list(range(2, 12))
+    for _ in range(200):
+        k0 = rng.integers(2, 10)
+        clean = np.minimum(ks, k0).astype(float)
+        noisy = clean * (1 + rng.uniform(-0.02, 0.02, len(ks)))
+        k = choose_k(ks, noisy, TOL)
+        assert noisy[ks.index(k)] * (1 + TOL) >= noisy.max()
+        assert k <= k0  # never past the knee: beyond it no value gains > 4 %
+
+
+def test_choose_k_skips_failed_k():
+    assert choose_k([2, 3, 4, 5], [1.0, math.nan, 2.0, 2.05], TOL) == 4
+    assert choose_k([2, 3, 4], [math.nan, 3.0, None], TOL) == 3
+    assert choose_k([2, 3], [math.nan, math.nan], TOL) is None
+    assert choose_k([], [], TOL) is None
+
+
+def test_choose_k_order_free():
+    assert choose_k([4, 2, 3], [3.05, 1.0, 3.0], TOL) == 3
+
+
+def runs(spec):
+    """RunSummary list from {(k, seed): metric or None (failed)}."""
+    return [RunSummary(id=run_id(k, s, "random"), k=k, ok=m is not None, metric=math.nan if m is None else m,
+                       wall_s=2.0) for (k, s), m in spec.items()]
+
+
+def test_select_best_per_k_and_chosen_run():
+    sel = select(runs({(2, 1): 1.0, (2, 2): 1.4, (3, 1): 3.0, (3, 2): None, (3, 3): 3.0, (4, 1): 3.1,
+                       (5, 1): None}), TOL, k_values=range(2, 7))
+    assert [s.k for s in sel.per_k] == [2, 3, 4, 5, 6]
+    assert [(s.runs_ok, s.runs_failed) for s in sel.per_k] == [(2, 0), (2, 1), (1, 0), (0, 1), (0, 0)]
+    assert [s.best_metric for s in sel.per_k] == [1.4, 3.0, 3.1, None, None]
+    assert sel.per_k[1].best_run == "k3_s0001_random"  # tie: smallest id
+    assert sel.per_k[1].wall_s == 6.0
+    assert sel.chosen_k == 3 and sel.chosen_run == "k3_s0001_random" and sel.plateau_reached
+    assert sel.runs_total == 7
+
+
+def test_select_rising_is_not_confirmed():
+    sel = select(runs({(2, 1): 1.0, (3, 1): 2.0}), TOL)
+    assert sel.chosen_k == 3 and not sel.plateau_reached
+
+
+def test_select_all_failed():
+    sel = select(runs({(2, 1): None, (3, 1): None}), TOL, k_values=[2, 3])
+    assert sel.chosen_k is None and sel.chosen_run is None and not sel.plateau_reached
+    assert [s.runs_failed for s in sel.per_k] == [1, 1]
+
+
+def test_select_nothing():
+    sel = select([], TOL, k_values=[2, 3])
+    assert sel.chosen_k is None and sel.runs_total == 0 and len(sel.per_k) == 2

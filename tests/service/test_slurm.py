@@ -1,0 +1,404 @@
+"""The SLURM scripts in slurm/: syntax, and the commands they issue.
+
+Each script runs with stand-in `srun`, `sbatch`, `mpirun` and `mscap` executables first on
+PATH: tiny shell scripts that append their name and argv to a log (fields separated by \\x1f,
+calls by \\x1e); the stand-in sbatch prints a job id (12345, 12346, ... in order). No SLURM
+or MPI is needed.
+"""
+
+from __future__ import annotations
+
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+SLURM = ROOT / "slurm"
+SCRIPTS = ["mscap_run.sbatch", "mscap_array.sbatch", "submit_array.sh"]
+BASH = shutil.which("bash") or "/bin/bash"
+
+LOGGER = """#!/bin/sh
+{ printf '%s\\037' "$(basename "$0")"; printf '%s\\037' "$@"; printf '\\036'; } >> "$STANDIN_LOG"
+"""
+
+SBATCH = LOGGER + """n=$(cat "$STANDIN_LOG.jobs" 2>/dev/null || echo 12345)
+echo $((n + 1)) > "$STANDIN_LOG.jobs"
+parsable=0
+for a in "$@"; do [ "$a" = --parsable ] && parsable=1; done
+if [ "$parsable" = 1 ] && [ -z "${STANDIN_SBATCH_PLAIN:-}" ]; then
+    echo "$n${STANDIN_SBATCH_CLUSTER:+;$STANDIN_SBATCH_CLUSTER}"
+else
+    echo "Submitted batch job $n"
+fi
+"""
+
+# A launcher that stays up until told to stop; records a SIGTERM it receives.
+SLOW = LOGGER + """trap 'echo TERM >> "$STANDIN_LOG.signals"; exit 143' TERM
+touch "$STANDIN_LOG.started"
+i=0
+while [ $i -lt 100 ]; do sleep 0.1; i=$((i + 1)); done
+"""
+
+
+def calls(log: Path) -> list[list[str]]:
+    """[name, arg1, arg2, ...] per stand-in call, in order."""
+    if not log.exists():
+        return []
+    text = log.read_text()
+    return [rec.split("\x1f")[:-1] for rec in text.split("\x1e")[:-1]]
+
+
+def option(argv: list[str], name: str) -> str:
+    """The value of `name VALUE` or `name=VALUE` in argv."""
+    for i, a in enumerate(argv):
+        if a == name:
+            return argv[i + 1]
+        if a.startswith(name + "="):
+            return a[len(name) + 1:]
+    raise AssertionError(f"{name} not in {argv}")
+
+
+def mscap_args(call: list[str]) -> list[str]:
+    """The argv after `mscap` in a launcher call (srun ... mscap ARGS / mpirun -n N mscap ARGS)."""
+    return call[call.index("mscap") + 1:]
+
+
+class Env:
+    def __init__(self, tmp: Path, tools=("srun", "sbatch", "mpirun", "mscap")):
+        self.tmp = tmp
+        self.bin = tmp / "bin"
+        self.bin.mkdir()
+        self.log = tmp / "calls.log"
+        for tool in tools:
+            self.add(tool, SBATCH if tool == "sbatch" else LOGGER)
+        # No venv at MSCAP_VENV: the scripts fall back to the mscap on PATH (the stand-in).
+        self.env = {
+            "PATH": f"{self.bin}:/usr/bin:/bin",
+            "HOME": str(tmp),
+            "STANDIN_LOG": str(self.log),
+            "MSCAP_REPO": str(tmp),
+            "MSCAP_VENV": str(tmp / "no-venv"),
+        }
+
+    def add(self, tool: str, text: str) -> None:
+        path = self.bin / tool
+        path.write_text(text)
+        path.chmod(0o755)
+
+    def remove(self, tool: str) -> None:
+        (self.bin / tool).unlink()
+
+    def run(self, script: str, *args: str, check=True, **env) -> subprocess.CompletedProcess:
+        proc = subprocess.run([BASH, str(SLURM / script), *args], cwd=self.tmp,
+                              env={**self.env, **env}, capture_output=True, text=True, timeout=30)
+        if check:
+            assert proc.returncode == 0, proc.stderr
+        return proc
+
+    @property
+    def calls(self):
+        return calls(self.log)
+
+
+@pytest.fixture
+def sandbox(tmp_path):
+    return Env(tmp_path)
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_bash_syntax(script):
+    text = (SLURM / script).read_text()
+    assert text.startswith("#!/bin/bash\n")
+    assert "set -euo pipefail" in text
+    subprocess.run([BASH, "-n", str(SLURM / script)], check=True, timeout=10)
+
+
+@pytest.mark.parametrize("script", ["mscap_run.sbatch", "mscap_array.sbatch"])
+def test_sbatch_headers(script):
+    lines = (SLURM / script).read_text().splitlines()
+    header = {ln.split()[1].split("=")[0] for ln in lines if ln.startswith("#SBATCH ")}
+    assert {"--ntasks", "--time", "--job-name", "--output"} <= header
+    assert any(ln.startswith("# module load") for ln in lines)      # site lines, commented
+    assert not any(ln.startswith("module ") for ln in lines)
+
+
+# --- mscap_run.sbatch -------------------------------------------------------------------------
+
+def test_run_uses_srun_with_scene_and_output(sandbox):
+    sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="8",
+                SCENE="jobs/grid3x3.toml", OUT="out/grid.h5")
+    (call,) = sandbox.calls
+    assert call[0] == "srun"
+    assert mscap_args(call) == ["run", "jobs/grid3x3.toml", "-o", "out/grid.h5"]
+    assert (sandbox.tmp / "out").is_dir()
+
+
+def test_run_defaults_and_restrictions(sandbox):
+    sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="4", K_MIN="2", K_MAX="4",
+                SEEDS="0:5", QUIET="1", MSCAP_ARGS="--force", SRUN_ARGS="--mpi=pmix")
+    (call,) = sandbox.calls
+    assert call[:3] == ["srun", "--mpi=pmix", "mscap"]
+    assert mscap_args(call) == ["run", "jobs/poking.toml", "-o", "results.h5", "--k-min", "2",
+                                "--k-max", "4", "--seeds", "0:5", "--quiet", "--force"]
+
+
+def test_run_positional_arguments_win(sandbox):
+    sandbox.run("mscap_run.sbatch", "jobs/a b.toml", "r.h5", SLURM_JOB_ID="77", SCENE="x.toml")
+    (call,) = sandbox.calls
+    assert mscap_args(call)[:4] == ["run", "jobs/a b.toml", "-o", "r.h5"]
+
+
+def test_run_falls_back_to_mpirun_without_srun(sandbox):
+    sandbox.remove("srun")
+    proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="6", OUT="r.h5")
+    (call,) = sandbox.calls
+    assert call[:4] == ["mpirun", "-n", "6", "mscap"]
+    assert mscap_args(call) == ["run", "jobs/poking.toml", "-o", "r.h5"]
+    assert "using" in proc.stderr                     # no venv: told which mscap it uses
+
+
+def test_run_outside_slurm_uses_mpirun(sandbox):
+    sandbox.run("mscap_run.sbatch", NTASKS="3")      # srun present but no job: not used
+    (call,) = sandbox.calls
+    assert call[:4] == ["mpirun", "-n", "3", "mscap"]
+
+
+def test_run_sets_one_thread_and_activates_venv(sandbox):
+    venv = sandbox.tmp / "venv"
+    (venv / "bin").mkdir(parents=True)
+    # An activate script that puts a different mscap first and is written without `set -u` care.
+    (venv / "bin" / "activate").write_text(f'PATH="{venv}/bin:$PATH"; export VIRTUAL_ENV="{venv}"\n'
+                                           'echo "$UNSET_IN_ACTIVATE" > /dev/null\n')
+    mscap = venv / "bin" / "mscap"
+    mscap.write_text('#!/bin/sh\necho "$OMP_NUM_THREADS $VIRTUAL_ENV" > "$STANDIN_LOG.venv"\n')
+    mscap.chmod(0o755)
+    sandbox.remove("srun")
+    sandbox.remove("mpirun")
+    sandbox.add("mpirun", LOGGER + 'shift 2; exec "$@"\n')   # mpirun -n N CMD...: run CMD once
+    sandbox.run("mscap_run.sbatch", MSCAP_VENV=str(venv), SLURM_JOB_ID="77", SLURM_NTASKS="2")
+    assert (sandbox.tmp / "calls.log.venv").read_text().split() == ["1", str(venv)]
+
+
+def test_run_fails_without_mscap(sandbox):
+    sandbox.remove("mscap")
+    proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", check=False)
+    assert proc.returncode == 1 and "MSCAP_VENV" in proc.stderr
+    assert sandbox.calls == []
+
+
+def test_run_passes_exit_status(sandbox):
+    sandbox.add("srun", LOGGER + "exit 3\n")
+    proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", check=False)
+    assert proc.returncode == 3
+
+
+@pytest.mark.parametrize("script", ["mscap_run.sbatch", "mscap_array.sbatch"])
+def test_sigterm_is_forwarded_to_launcher(sandbox, script):
+    """SLURM's --signal=B:TERM@120 reaches the batch shell: it must pass it to srun."""
+    sandbox.add("srun", SLOW)
+    proc = subprocess.Popen([BASH, str(SLURM / script)], cwd=sandbox.tmp,
+                            env={**sandbox.env, "SLURM_JOB_ID": "77", "SLURM_ARRAY_TASK_ID": "2"},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    started = sandbox.tmp / "calls.log.started"
+    deadline = time.monotonic() + 10
+    while not started.exists() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert started.exists()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=10)
+    assert (sandbox.tmp / "calls.log.signals").read_text().split() == ["TERM"]
+    assert proc.returncode == 143, err
+
+
+# --- mscap_array.sbatch -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("task", ["2", "3", "6"])
+def test_array_task_runs_its_k(sandbox, task):
+    sandbox.run("mscap_array.sbatch", SLURM_JOB_ID="90", SLURM_ARRAY_TASK_ID=task,
+                SLURM_NTASKS="4", SCENE="jobs/grid3x3.toml", OUTDIR="parts")
+    (call,) = sandbox.calls
+    assert call[0] == "srun"
+    assert mscap_args(call) == ["run", "jobs/grid3x3.toml", "-o", f"parts/results_k{task}.h5",
+                                "--k-min", task, "--k-max", task]
+    assert (sandbox.tmp / "parts").is_dir()
+
+
+def test_array_k_split_with_seed_restriction_and_mpirun(sandbox):
+    sandbox.remove("srun")
+    sandbox.run("mscap_array.sbatch", SLURM_JOB_ID="90", SLURM_ARRAY_TASK_ID="4",
+                SLURM_NTASKS="5", SEEDS="0:10", QUIET="1")
+    (call,) = sandbox.calls
+    assert call[:4] == ["mpirun", "-n", "5", "mscap"]
+    assert mscap_args(call) == ["run", "jobs/poking.toml", "-o", "results/results_k4.h5",
+                                "--k-min", "4", "--k-max", "4", "--seeds", "0:10", "--quiet"]
+
+
+@pytest.mark.parametrize("task, seeds", [("0", "0:5"), ("1", "5:10"), ("4", "20:22")])
+def test_array_task_runs_its_seed_chunk(sandbox, task, seeds):
+    sandbox.run("mscap_array.sbatch", SLURM_JOB_ID="90", SLURM_ARRAY_TASK_ID=task, SPLIT="seeds",
+                SEED_CHUNK="5", SEEDS_TOTAL="22", K_MIN="2", K_MAX="3")
+    (call,) = sandbox.calls
+    a, b = seeds.split(":")
+    assert mscap_args(call) == ["run", "jobs/poking.toml", "-o",
+                                f"results/results_seeds{a}-{b}.h5", "--seeds", seeds,
+                                "--k-min", "2", "--k-max", "3"]
+
+
+def test_array_task_beyond_seeds_does_nothing(sandbox):
+    sandbox.run("mscap_array.sbatch", SLURM_JOB_ID="90", SLURM_ARRAY_TASK_ID="5", SPLIT="seeds",
+                SEED_CHUNK="5", SEEDS_TOTAL="22")
+    assert sandbox.calls == []
+
+
+def test_array_needs_task_id_and_valid_split(sandbox):
+    assert sandbox.run("mscap_array.sbatch", check=False).returncode == 2
+    proc = sandbox.run("mscap_array.sbatch", SLURM_ARRAY_TASK_ID="1", SPLIT="poses", check=False)
+    assert proc.returncode == 2 and "SPLIT" in proc.stderr
+    assert sandbox.calls == []
+
+
+# --- submit_array.sh --------------------------------------------------------------------------
+
+def scene(tmp: Path, multistart: str = "") -> Path:
+    path = tmp / "jobs" / "tiny.toml"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text('name = "tiny"\n' + (f"[multistart]\n{multistart}\n" if multistart else ""))
+    return path
+
+
+def run_merge_command(sandbox: Env, wrap: str, present: list[Path]) -> list[str]:
+    """Run the merge job's --wrap text under /bin/sh with some parts present; mscap's argv."""
+    for p in present:
+        p.write_text("")
+    before = len(sandbox.calls)
+    proc = subprocess.run(["/bin/sh", "-c", wrap], env=sandbox.env, capture_output=True,
+                          text=True, timeout=10)
+    assert proc.returncode == 0, proc.stderr
+    (call,) = sandbox.calls[before:]
+    assert call[0] == "mscap"
+    return call[1:]
+
+
+def test_submit_k_array_then_dependent_merge(sandbox):
+    s = scene(sandbox.tmp, "k_min = 3\nk_max = 5")
+    proc = sandbox.run("submit_array.sh", "jobs/tiny.toml", "--outdir", "parts", "--",
+                       "--ntasks=16", "--time=1:00:00", MSCAP_REPO="")   # default: this repo
+    array, merge = sandbox.calls
+    parts = sandbox.tmp / "parts"
+    assert array[0] == "sbatch" and "--parsable" in array
+    assert option(array, "--array") == "3-5"                       # from the scene's [multistart]
+    exports = dict(kv.split("=", 1) for kv in option(array, "--export").split(",")[1:])
+    assert option(array, "--export").startswith("ALL,")
+    assert exports["SCENE"] == str(s) and exports["OUTDIR"] == str(parts)
+    assert exports["SPLIT"] == "k" and exports["MSCAP_REPO"] == str(ROOT)
+    assert array[-3:] == ["--ntasks=16", "--time=1:00:00", str(SLURM / "mscap_array.sbatch")]
+
+    assert merge[0] == "sbatch"
+    assert option(merge, "--dependency") == "afterany:12345"
+    wrap = option(merge, "--wrap")
+    expected = [str(parts / f"results_k{k}.h5") for k in (3, 4, 5)]
+    for p in expected:
+        assert p in wrap
+    assert "12345" in proc.stdout and "12346" in proc.stdout
+    # Run the merge job's command: every part listed, merged file last.
+    argv = run_merge_command(sandbox, wrap, [Path(p) for p in expected])
+    assert argv == ["merge", *expected, "-o", str(parts / "all.h5"), "--force"]  # parts are the truth
+
+
+def test_submit_merge_skips_missing_parts(sandbox):
+    scene(sandbox.tmp)
+    sandbox.run("submit_array.sh", "--k-min", "2", "--k-max", "4", "--merged", "m.h5",
+                "jobs/tiny.toml", MSCAP_REPO=str(sandbox.tmp))
+    array, merge = sandbox.calls
+    assert option(array, "--array") == "2-4"
+    parts = sandbox.tmp / "results" / "tiny"
+    assert (parts).is_dir()
+    argv = run_merge_command(sandbox, option(merge, "--wrap"),
+                             [parts / "results_k2.h5", parts / "results_k4.h5"])
+    assert argv == ["merge", str(parts / "results_k2.h5"), str(parts / "results_k4.h5"),
+                    "-o", str(sandbox.tmp / "m.h5"), "--force"]
+
+
+def test_submit_seed_split(sandbox):
+    scene(sandbox.tmp, "k_min = 2\nk_max = 3\nstarts_per_k = 12")
+    sandbox.run("submit_array.sh", "--split", "seeds", "--seed-chunk", "5", "--max-parallel", "2",
+                "jobs/tiny.toml", MSCAP_REPO=str(sandbox.tmp))
+    array, merge = sandbox.calls
+    assert option(array, "--array") == "0-2%2"
+    exports = option(array, "--export")
+    for kv in ("SPLIT=seeds", "SEED_CHUNK=5", "SEEDS_TOTAL=12", "K_MIN=2", "K_MAX=3"):
+        assert kv in exports.split(",")
+    assert option(merge, "--dependency") == "afterany:12345"
+    parts = sandbox.tmp / "results" / "tiny"
+    expected = [parts / n for n in ("results_seeds0-5.h5", "results_seeds5-10.h5",
+                                    "results_seeds10-12.h5")]
+    argv = run_merge_command(sandbox, option(merge, "--wrap"), expected)
+    assert argv == ["merge", *map(str, expected), "-o", str(parts / "all.h5"), "--force"]
+
+
+@pytest.mark.parametrize("mode", ["plain", "cluster"])
+def test_submit_reads_either_sbatch_output(sandbox, mode):
+    scene(sandbox.tmp)
+    env = {"STANDIN_SBATCH_PLAIN": "1"} if mode == "plain" else {"STANDIN_SBATCH_CLUSTER": "c1"}
+    sandbox.run("submit_array.sh", "jobs/tiny.toml", MSCAP_REPO=str(sandbox.tmp), **env)
+    _, merge = sandbox.calls
+    assert option(merge, "--dependency") == "afterany:12345"
+
+
+def test_submit_array_task_and_merge_agree_on_part_names(sandbox):
+    """The part each array task writes is the part the merge job lists."""
+    scene(sandbox.tmp, "k_min = 2\nk_max = 3")
+    sandbox.run("submit_array.sh", "jobs/tiny.toml", MSCAP_REPO=str(sandbox.tmp))
+    array, merge = sandbox.calls
+    exports = dict(kv.split("=", 1) for kv in option(array, "--export").split(",")[1:])
+    written = []
+    for k in ("2", "3"):
+        sandbox.run("mscap_array.sbatch", SLURM_JOB_ID="12345", SLURM_ARRAY_TASK_ID=k, **exports)
+        written.append(option(sandbox.calls[-1], "-o"))
+    argv = run_merge_command(sandbox, option(merge, "--wrap"), [Path(p) for p in written])
+    assert argv[1:-3] == written
+
+
+def test_submit_rejects_bad_input(sandbox):
+    assert sandbox.run("submit_array.sh", "jobs/missing.toml", check=False).returncode == 2
+    scene(sandbox.tmp)
+    proc = sandbox.run("submit_array.sh", "--k-min", "5", "--k-max", "3", "jobs/tiny.toml",
+                       check=False)
+    assert proc.returncode == 2 and "exceeds" in proc.stderr
+    assert sandbox.run("submit_array.sh", "--bogus", check=False).returncode == 2
+    assert sandbox.calls == []
+
+
+def test_submit_merge_uses_venv_and_odd_paths(sandbox):
+    """Paths with spaces and quotes survive; the merge job puts the venv's mscap first."""
+    scene(sandbox.tmp, "k_min = 2\nk_max = 3")
+    venv = sandbox.tmp / "my venv"
+    (venv / "bin").mkdir(parents=True)
+    (venv / "bin" / "mscap").write_text(LOGGER.replace('"$(basename "$0")"', "venv-mscap"))
+    (venv / "bin" / "mscap").chmod(0o755)
+    sandbox.run("submit_array.sh", "--outdir", "it's parts", "jobs/tiny.toml",
+                MSCAP_REPO=str(sandbox.tmp), MSCAP_VENV=str(venv))
+    _, merge = sandbox.calls
+    parts = sandbox.tmp / "it's parts"
+    expected = [parts / "results_k2.h5", parts / "results_k3.h5"]
+    for p in expected:
+        p.write_text("")
+    proc = subprocess.run(["/bin/sh", "-c", option(merge, "--wrap")], env=sandbox.env,
+                          capture_output=True, text=True, timeout=10)
+    assert proc.returncode == 0, proc.stderr
+    assert sandbox.calls[-1] == ["venv-mscap", "merge", *map(str, expected), "-o",
+                                 str(parts / "all.h5"), "--force"]
+
+
+def test_submit_merge_fails_with_no_parts(sandbox):
+    scene(sandbox.tmp)
+    sandbox.run("submit_array.sh", "jobs/tiny.toml", MSCAP_REPO=str(sandbox.tmp))
+    _, merge = sandbox.calls
+    proc = subprocess.run(["/bin/sh", "-c", option(merge, "--wrap")], env=sandbox.env,
+                          capture_output=True, text=True, timeout=10)
+    assert proc.returncode == 1 and "no parts" in proc.stderr
+    assert [c[0] for c in sandbox.calls] == ["sbatch", "sbatch"]
