@@ -43,10 +43,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mscap.layered import mesh_scene  # noqa: E402
-from mscap.petsc import petsc  # noqa: E402
+from mscap.mesh.layered import mesh_scene  # noqa: E402
+from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
-from mscap.simulate import simulate  # noqa: E402
+from mscap.fem.simulate import simulate  # noqa: E402
 
 CASES = [("poking", "poke_0"), ("grid3x3", "stretch_100")]
 #: Per pose, the three runs extrapolated to the reference (slabs 0: one per layer). The

@@ -43,11 +43,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mscap.electrostatic import build_problem, solve  # noqa: E402
-from mscap.geometry import square  # noqa: E402
-from mscap.layout import Layout  # noqa: E402
-from mscap.layered import mesh_scene  # noqa: E402
-from mscap.petsc import petsc  # noqa: E402
+from mscap.fem.electrostatic import build_problem, solve  # noqa: E402
+from mscap.geometry.polygons import square  # noqa: E402
+from mscap.geometry.layout import Layout  # noqa: E402
+from mscap.mesh.layered import mesh_scene  # noqa: E402
+from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 
 FIELDS = ["order", "edge_length_outline_mm", "edge_length_mm", "grading_distance_mm",

@@ -3,7 +3,7 @@
 For each scene, in a process of its own (one core, ``OMP_NUM_THREADS=1``; peak memory
 per scene):
 
-1. **cold forward**: ``mscap.simulate.simulate`` — meshing, every pose along its full
+1. **cold forward**: ``mscap.fem.simulate.simulate`` — meshing, every pose along its full
    load path, the electrostatics; what ``mscap simulate`` costs;
 2. **design set-up**: ``build_design`` (meshes, skinning weights of the controls);
 3. **evaluation** at the initial layout: every pose from rest (full load path) on the
@@ -18,7 +18,7 @@ per scene):
    peak memory is what a multi-start worker needs (the finer-mesh check at the end of a
    run excepted: benchmarks/scaling.py has memory against mesh size).
 
-Each stage's wall time is split with :mod:`mscap.profile` into meshing, assembly,
+Each stage's wall time is split with :mod:`mscap.fem.profile` into meshing, assembly,
 factorisation, solve and other (Python and numpy outside the kernels). The issue's
 targets: gradient ≤ 1.5× the evaluation; a warm iteration ≥ 5× cheaper than a cold
 forward; ≤ 2 GB per process.
@@ -57,7 +57,7 @@ KINDS = ["meshing", "assembly", "factorisation", "solve", "other", "total"]
 
 def _timed(stage: str, out: dict, function, *args, **kwargs):
     """Run ``function``, store its split under ``stage`` in ``out``, return its value."""
-    from mscap import profile
+    from mscap.fem import profile
 
     profile.reset()
     start = time.perf_counter()
@@ -70,9 +70,9 @@ def measure(path: Path) -> dict:
     """Every stage of the module docstring for the scene file ``path``."""
     import numpy as np
 
-    from mscap.design import build_design
+    from mscap.design.pipeline import build_design
     from mscap.scene import load_scene
-    from mscap.simulate import simulate
+    from mscap.fem.simulate import simulate
 
     scene = load_scene(path)
     out: dict = {"scene": scene.name, "poses": len(scene.poses)}
@@ -97,8 +97,8 @@ def measure(path: Path) -> dict:
 def measure_optimisation(path: Path, iterations: int) -> dict:
     """``iterations`` accepted steps from the scene's layout, in a process of its own so
     that its peak memory is what one multi-start worker needs for this scene."""
-    from mscap.design import build_design
-    from mscap.optimize import optimize
+    from mscap.design.pipeline import build_design
+    from mscap.design.optimizer import optimize
     from mscap.scene import load_scene
 
     scene = load_scene(path)

@@ -50,7 +50,7 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import table_head, write_csv  # noqa: E402
 
-from mscap.store import finished_ids, read_run, read_store  # noqa: E402
+from mscap.service.store import finished_ids, read_run, read_store  # noqa: E402
 
 FIELDS = ["ranks", "workers", "cores", "oversubscribed", "runs", "failed", "runs_per_rank", "job_wall_s",
           "run_wall_sum_s", "busy_fraction", "speedup", "idle_per_run_s", "max_dC_pF"]

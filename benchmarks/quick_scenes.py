@@ -52,9 +52,9 @@ def mscap(*args: str, ranks: int = 3, log: Path) -> float:
 
 
 def scene_row(name: str, out: Path) -> dict:
-    from mscap.design import min_pairwise_l1
+    from mscap.design.history import min_pairwise_l1
     from mscap.scene import load_scene
-    from mscap.store import read_run, read_store, store_selection
+    from mscap.service.store import read_run, read_store, store_selection
 
     path = ROOT / "jobs" / f"{name}_quick.toml"
     scene = load_scene(path)

@@ -35,7 +35,7 @@ FIELDS = ["scene", "tag", "objective", "seeds", "run_s", "calibrate_s", "chosen_
 
 
 def scene_row(name: str, scene_file: Path, out: Path, seeds: str | None, tag: str) -> dict:
-    from mscap.store import read_run, read_store, store_selection
+    from mscap.service.store import read_run, read_store, store_selection
 
     results = out / f"{name}_{tag}.h5"
     log = out / f"{name}_{tag}.log"

@@ -32,7 +32,7 @@ def step_time(scene, reps: int) -> tuple[int, float]:
     """Design poses and the median wall time (s) of a warm evaluation + gradient."""
     import numpy as np
 
-    from mscap.design import build_design
+    from mscap.design.pipeline import build_design
 
     design = build_design(scene)
     rng = np.random.default_rng(0)

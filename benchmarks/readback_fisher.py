@@ -36,9 +36,9 @@ def report(label: str, bound, capacitance_pF: np.ndarray) -> None:
 
 
 def main() -> None:
-    from mscap.readback import ReconstructionBound, design_scene
+    from mscap.design.readback import ReconstructionBound, design_scene
     from mscap.scene import load_scene
-    from mscap.store import read_run, read_store
+    from mscap.service.store import read_run, read_store
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("scene")

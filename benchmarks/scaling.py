@@ -5,12 +5,12 @@ four 13 mm pokes) by multiplying every edge length by a factor: ``[mesh]
 edge_length_mm`` and ``edge_length_outline_mm``, ``[elastic] edge_length_mm`` (and its
 ``edge_length_outline_mm`` if set); the grading distance and the layers through the
 thickness stay as they are. Each level runs the cold forward simulation
-(:func:`mscap.simulate.simulate`, every pose, meshing included) on one core in a
+(:func:`mscap.fem.simulate.simulate`, every pose, meshing included) on one core in a
 process of its own, so the peak resident memory (``ru_maxrss``) is that level's alone.
 
 Per level: electrostatic tets and vertices, elastic tets and nodes, wall time with the
-split of :func:`~mscap.simulate.simulate` (mesh, setup, elastic, electrostatic) and of
-:mod:`mscap.profile` (meshing, assembly, factorisation, solve, other), the resident
+split of :func:`~mscap.fem.simulate.simulate` (mesh, setup, elastic, electrostatic) and of
+:mod:`mscap.fem.profile` (meshing, assembly, factorisation, solve, other), the resident
 memory after start-up (Python, numpy, PETSc) and the peak. The fits
 log t = a + p log(tets) and log(peak MB) = a + p log(tets) run over the levels, tets
 being the electrostatic mesh's (the elastic mesh is 60–100× smaller); the elastic time
@@ -82,10 +82,10 @@ def peak_rss_MB() -> float:
 
 def measure(scene_path: str, factor: float) -> dict:
     """One level, in this process: the cold forward simulation of the refined scene."""
-    from mscap import profile
-    from mscap.petsc import petsc, set_scene_options
+    from mscap.fem import profile
+    from mscap.fem.petsc import petsc, set_scene_options
     from mscap.scene import load_scene
-    from mscap.simulate import simulate
+    from mscap.fem.simulate import simulate
 
     petsc()
     scene = refined(load_scene(scene_path), factor)

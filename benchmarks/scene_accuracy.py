@@ -10,7 +10,7 @@ shipped, marked ★. At factors √2 and 1 the other element orders run as well,
 time: electrostatics P1 ↔ P2 (``[mesh] order``) and elasticity P1 ↔ P2 (``[elastic]
 order``, where a pose deforms), to show what a higher order buys.
 
-Each level is the cold forward simulation (:func:`mscap.simulate.simulate`: meshing,
+Each level is the cold forward simulation (:func:`mscap.fem.simulate.simulate`: meshing,
 every pose's elastic equilibrium, electrostatics) on one core in a process of its own,
 so its peak resident memory (``ru_maxrss``) is its own; the wall time is that of
 ``simulate`` alone (the ~1–2 s of Python, PETSc and gmsh start-up are not counted).
@@ -26,7 +26,7 @@ independent check, and a small p inflates it (p = 0.6 puts C* 4.3 steps C₂ →
 C₃): ``error_vs_finest``, the same maximum against the finest level alone, is printed
 beside it as a lower bound free of extrapolation. With fewer than three finished levels
 the finest one is the reference. ``estimate`` is what a multi-start run stores
-(:mod:`mscap.accuracy`, ``[multistart] error_estimate``): |C(f) − C(f/2)| / |C(f/2)| at
+(:mod:`mscap.service.accuracy`, ``[multistart] error_estimate``): |C(f) − C(f/2)| / |C(f/2)| at
 the same orders, where the level f/2 ran; for a rate p the error should be about
 estimate · 2ᵖ/(2ᵖ − 1), and the two columns side by side show whether it is.
 
@@ -150,9 +150,9 @@ def measure(scene_path: str, level: Level) -> dict:
     """One level, in this process: the cold forward simulation of the refined scene."""
     import resource
 
-    from mscap.petsc import petsc, set_scene_options
+    from mscap.fem.petsc import petsc, set_scene_options
     from mscap.scene import load_scene
-    from mscap.simulate import simulate
+    from mscap.fem.simulate import simulate
 
     petsc()
     scene = refined(load_scene(scene_path), level)
@@ -228,7 +228,7 @@ def reference_of(levels, rows, default: Level):
 
 def scene_rows(name: str, levels, rows, default: Level, reference) -> list[dict]:
     """CSV rows of one scene: error against ``reference`` and the finer-mesh estimate."""
-    from mscap.accuracy import relative_difference
+    from mscap.service.accuracy import relative_difference
 
     finished = [lv for lv in levels if lv.orders == default.orders and rows.get(lv)]
     finest = np.array(rows[min(finished, key=lambda lv: lv.factor)]["capacitance_pF"]) if finished else None

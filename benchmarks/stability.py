@@ -1,7 +1,7 @@
 """Numerical stability of the elastic solver: hard materials, thin layers, large strains.
 
 Runs every pose of the scenes in ``benchmarks/scenes/`` through the forward pipeline
-(:func:`mscap.simulate.simulate`, one pose at a time on one mesh per scene) and records,
+(:func:`mscap.fem.simulate.simulate`, one pose at a time on one mesh per scene) and records,
 for each pose, either the converged equilibrium (Newton iterations, of them projected,
 load steps, step cuts, final residual, min J, wall time, capacitances) or the
 :class:`~mscap.errors.MscapError` it stopped with. Every converged pose is checked:
@@ -201,10 +201,10 @@ def physical_check(scene, problem, pose, state, ratio: np.ndarray) -> tuple[list
 def run_case(case: Case, elastic_order: int | None = None, verbose: bool = False,
              hessian: str | None = None, elastic_mesh: str = "shared") -> list[dict]:
     from mscap.errors import MscapError
-    from mscap.layered import mesh_scene
-    from mscap.petsc import set_scene_options
+    from mscap.mesh.layered import mesh_scene
+    from mscap.fem.petsc import set_scene_options
     from mscap.scene import load_scene
-    from mscap.simulate import simulate
+    from mscap.fem.simulate import simulate
 
     scene = load_scene(SCENES / case.scene)
     # The study resolves every layer (the stiff plates, the 10 um layers): the elastic
@@ -354,7 +354,7 @@ def main(argv=None) -> int:
                         "else none)")
     parser.add_argument("-v", "--verbose", action="store_true", help="progress of every load step")
     args = parser.parse_args(argv)
-    from mscap.petsc import petsc
+    from mscap.fem.petsc import petsc
 
     petsc([])
     logging.basicConfig(level=logging.WARNING)

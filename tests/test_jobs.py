@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 
 JOBS = Path(__file__).resolve().parents[1] / "jobs"
 # biaxial_quick: tests/bodies/test_bodies.py; quick: make run and tests/service/test_multistart.py

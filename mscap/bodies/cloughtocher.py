@@ -34,6 +34,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from mscap.mesh.locate import TriangleLocator
+
 __all__ = ["CloughTocher"]
 
 
@@ -111,7 +113,7 @@ class CloughTocher:
         self._g = self._cross_boundary_directions()
         self._matrix, self._rhs = self._gradient_system()
         self._lu = splu(self._matrix.tocsc())
-        self._finder = None
+        self._locator = None
 
     # ---------------------------------------------------------------- construction
 
@@ -197,38 +199,12 @@ class CloughTocher:
         return self._lu.solve(np.asarray(self._rhs @ values)).reshape(len(self.points), 2, -1)
 
     def locate(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Triangle (``-1`` outside) and barycentric coordinates of each point.
-
-        Points within 1e-9 of the domain's size outside a boundary edge count as on it.
-        """
-        if self._finder is None:
-            # a trapezoid map works on any valid triangulation; imported only when needed
-            import matplotlib.tri as mtri
-            triangulation = mtri.Triangulation(self.points[:, 0], self.points[:, 1], self.triangles)
-            self._finder = mtri.TrapezoidMapTriFinder(triangulation)
-        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-        tri = np.asarray(self._finder(xy[:, 0], xy[:, 1]), dtype=np.int64)
-        miss = np.flatnonzero(tri < 0)
-        if len(miss):
-            tri[miss] = self._nearest_boundary_triangle(xy[miss])
-        bary = np.zeros((len(xy), 3))
-        found = tri >= 0
-        bary[found] = self._barycentric(tri[found], xy[found])
-        return tri, bary
-
-    def _nearest_boundary_triangle(self, xy: np.ndarray) -> np.ndarray:
-        t = self._boundary // 3
-        a, b = (self.points[i] for i in self.boundary_edges.T)
-        ab = b - a
-        out = np.full(len(xy), -1)
-        for start in range(0, len(xy), 1024):          # chunks bound the memory, not a loop per point
-            ap = xy[start:start + 1024, None, :] - a[None]
-            s = np.clip(np.einsum("peb,eb->pe", ap, ab) / np.einsum("eb,eb->e", ab, ab), 0, 1)
-            d = np.linalg.norm(ap - s[..., None] * ab[None], axis=2)
-            near = d.argmin(axis=1)
-            close = d[np.arange(len(near)), near] <= 1e-9 * self.scale
-            out[start:start + 1024] = np.where(close, t[near], -1)
-        return out
+        """Triangle (``-1`` outside) and barycentric coordinates of each point
+        (:class:`mscap.mesh.locate.TriangleLocator`: points within 1e-9 of the domain's
+        size outside a boundary edge count as on it)."""
+        if self._locator is None:
+            self._locator = TriangleLocator(self.points, self.triangles)
+        return self._locator.locate(xy)
 
     def evaluate(self, values: np.ndarray, gradients: np.ndarray, tri: np.ndarray,
                  bary: np.ndarray, derivative: bool = False):

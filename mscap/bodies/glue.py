@@ -8,7 +8,8 @@ K's own uv triangles.
 
 The interpolant is :class:`mscap.bodies.cloughtocher.CloughTocher` (scipy's Clough–Tocher
 scheme on K's own triangles); the named deformations of generated objects are in
-:mod:`mscap.bodies.registry`.
+:mod:`mscap.bodies.registry` (the table; the bodies are in :mod:`mscap.bodies.basic`,
+:mod:`mscap.bodies.pneumatic` and :mod:`mscap.bodies.hand`).
 
 Frames. ``positions`` are in the sheet frame: the object frame moved by the inverse
 placement, so that the flat parameter plane (u, v, 0) is the sheet's rest plane z = 0
@@ -41,8 +42,9 @@ import numpy as np
 from mscap.scene._toml import Table
 from mscap.bodies.cloughtocher import CloughTocher, _cross
 from mscap.errors import GeometryError
-from mscap.bodies.registry import (GENERATORS, ParameterError, cylinder, dome, generator_parameters,
-                         parameter_kind, register_generator)
+from mscap.bodies.basic import cylinder, dome
+from mscap.bodies.kinematics import ParameterError
+from mscap.bodies.registry import GENERATORS, generator_parameters, parameter_kind, register_generator
 from mscap.geometry.polygons import point_segment_distance, points_in_polygon
 
 __all__ = [

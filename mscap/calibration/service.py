@@ -39,11 +39,11 @@ import numpy as np
 
 from mscap.scene.calibration import CalibrationSettings, family_poses
 from mscap.errors import MscapError
-from mscap.service.farm import Stop, farm, release, serve
+from mscap.service import farm
 from mscap.geometry.layout import Layout
 from mscap.calibration.reconstruction import PoseErrors, fit, point_errors, score
 
-__all__ = ["CalibrationError", "Design", "FAMILIES", "families", "physics_sha256", "family", "targets",
+__all__ = ["CalibrationError", "Candidate", "FAMILIES", "families", "physics_sha256", "family", "targets",
            "simulate_family", "read_cache", "evaluate", "DesignScore"]
 
 log = logging.getLogger(__name__)
@@ -58,7 +58,7 @@ class CalibrationError(MscapError):
 
 
 @dataclass(frozen=True, eq=False)
-class Design:
+class Candidate:
     """A layout to calibrate: ``label`` names it in tables and figures."""
 
     label: str
@@ -132,7 +132,7 @@ class _Task:
     stop: int
 
 
-def _simulate_chunk(scene, design: Design, poses: tuple, mesh=None) -> tuple[np.ndarray, np.ndarray]:
+def _simulate_chunk(scene, design: Candidate, poses: tuple, mesh=None) -> tuple[np.ndarray, np.ndarray]:
     """Capacitances ``(n, k)`` and wall times of ``poses`` on one mesh of ``design``.
     A chunk that fails is redone pose by pose so only the failing poses are lost (NaN)."""
     from mscap.mesh.layered import mesh_scene
@@ -183,7 +183,7 @@ def _open_cache(path, scene) -> h5py.File:
     return f
 
 
-def _design_group(cache: h5py.File, design: Design, sizes: dict[str, int]) -> h5py.Group:
+def _design_group(cache: h5py.File, design: Candidate, sizes: dict[str, int]) -> h5py.Group:
     designs = cache["designs"]
     if design.key in designs:
         g = designs[design.key]
@@ -219,7 +219,7 @@ def _chunks(todo: np.ndarray, size: int) -> list[tuple[int, int]]:
     return out
 
 
-def simulate_family(scene, designs: list[Design], cache_path, comm=None,
+def simulate_family(scene, designs: list[Candidate], cache_path, comm=None,
                     progress: Callable[[str], None] | None = None) -> None:
     """Simulate every design's training and sequence poses that the cache lacks.
 
@@ -235,64 +235,49 @@ def simulate_family(scene, designs: list[Design], cache_path, comm=None,
     comm = comm or MPI.COMM_WORLD
     names = families(scene)
     poses_of = {which: family(scene, which) for which in names}
-    if comm.Get_rank() != 0:
-        serve(comm, _work(scene, designs, poses_of))
-        return
-    try:
+
+    def master(execute, stop) -> None:
         cache = _open_cache(cache_path, scene)
-    except Exception:
-        release(comm)
-        raise
-    stop = Stop()
-    try:
-        sizes = {which: len(poses_of[which]) for which in names}
-        groups = [_design_group(cache, d, sizes).name for d in designs]
-        n_workers = max(comm.Get_size() - 1, 1)
-        missing = [(i, which, ~cache[g][f"{which}_done"][()]) for i, g in enumerate(groups) for which in names]
-        # about two chunks per worker, but at least 4 poses each (a chunk meshes once)
-        size = max(4, math.ceil(sum(int(m.sum()) for *_, m in missing) / (2 * n_workers)))
-        tasks = [_Task(i, which, a, b) for i, which, m in missing for a, b in _chunks(m, size)]
-        total = sum(t.stop - t.start for t in tasks)
-        say(f"{cache_path}: {len(designs)} designs × ({sizes['training']} training + "
-            f"{sizes['sequence']} sequence poses"
-            + "".join(f" + reference pose {w[len('reference_'):]}" for w in names if w.startswith("reference_"))
-            + f"); {total} poses to simulate in {len(tasks)} chunks "
-            f"on {n_workers} worker{'s' if n_workers > 1 else ''}")
-        started, done = time.perf_counter(), 0
+        try:
+            sizes = {which: len(poses_of[which]) for which in names}
+            groups = [_design_group(cache, d, sizes).name for d in designs]
+            n_workers = max(comm.Get_size() - 1, 1)
+            missing = [(i, which, ~cache[g][f"{which}_done"][()]) for i, g in enumerate(groups) for which in names]
+            # about two chunks per worker, but at least 4 poses each (a chunk meshes once)
+            size = max(4, math.ceil(sum(int(m.sum()) for *_, m in missing) / (2 * n_workers)))
+            tasks = [_Task(i, which, a, b) for i, which, m in missing for a, b in _chunks(m, size)]
+            total = sum(t.stop - t.start for t in tasks)
+            say(f"{cache_path}: {len(designs)} designs × ({sizes['training']} training + "
+                f"{sizes['sequence']} sequence poses"
+                + "".join(f" + reference pose {w[len('reference_'):]}" for w in names if w.startswith("reference_"))
+                + f"); {total} poses to simulate in {len(tasks)} chunks "
+                f"on {n_workers} worker{'s' if n_workers > 1 else ''}")
+            started, done = time.perf_counter(), 0
 
-        def record(result) -> None:
-            nonlocal done
-            task, capacitance, wall = result
-            g = cache[groups[task.design]]
-            g[f"{task.which}_capacitance_pF"][task.start:task.stop] = capacitance
-            g[f"{task.which}_wall_s"][task.start:task.stop] = wall
-            g[f"{task.which}_done"][task.start:task.stop] = True
-            cache.flush()
-            done += task.stop - task.start
-            failed = int(np.isnan(capacitance).any(axis=1).sum())
-            eta = (time.perf_counter() - started) / done * (total - done)
-            say(f"[{done}/{total}] {designs[task.design].label} {task.which} poses {task.start}-"
-                f"{task.stop - 1}: {wall.sum():.1f} s" + (f", {failed} failed" if failed else "")
-                + f"; ETA {eta:.0f} s")
+            def record(result) -> None:
+                nonlocal done
+                task, capacitance, wall = result
+                g = cache[groups[task.design]]
+                g[f"{task.which}_capacitance_pF"][task.start:task.stop] = capacitance
+                g[f"{task.which}_wall_s"][task.start:task.stop] = wall
+                g[f"{task.which}_done"][task.start:task.stop] = True
+                cache.flush()
+                done += task.stop - task.start
+                failed = int(np.isnan(capacitance).any(axis=1).sum())
+                eta = (time.perf_counter() - started) / done * (total - done)
+                say(f"[{done}/{total}] {designs[task.design].label} {task.which} poses {task.start}-"
+                    f"{task.stop - 1}: {wall.sum():.1f} s" + (f", {failed} failed" if failed else "")
+                    + f"; ETA {eta:.0f} s")
 
-        if comm.Get_size() == 1:
-            work = _work(scene, designs, poses_of)
-            for task in tasks:
-                if stop.requested:
-                    break
-                record(work(task))
-        else:
-            farm(comm, tasks, record, stop)
-    finally:
-        stop.restore()
-        cache.close()
-    if stop.requested:
-        say("stopped: the finished poses are cached; rerun the same command to complete the rest")
-        if comm.Get_size() > 1:
-            comm.Abort(0)
+            execute(tasks, record)
+        finally:
+            cache.close()
+
+    farm.run(comm, lambda: _work(scene, designs, poses_of), master,
+             "stopped: the finished poses are cached; rerun the same command to complete the rest", say)
 
 
-def read_cache(cache_path, design: Design, names=FAMILIES) -> dict[str, np.ndarray]:
+def read_cache(cache_path, design: Candidate, names=FAMILIES) -> dict[str, np.ndarray]:
     """A design's cached capacitances and wall times of the pose sets ``names``."""
     with h5py.File(cache_path, "r") as f:
         if design.key not in f["designs"]:
@@ -316,7 +301,7 @@ class DesignScore:
     point error per sequence pose of a sensor that tells nothing (always answering the
     mean training pose): errors near it mean the read-outs carry no usable signal."""
 
-    design: Design
+    design: Candidate
     errors: PoseErrors
     no_signal: np.ndarray
     training_used: int
@@ -326,7 +311,7 @@ class DesignScore:
     simulation_s: float
 
 
-def evaluate(scene, designs: list[Design], cache_path, noise=None) -> list[DesignScore]:
+def evaluate(scene, designs: list[Candidate], cache_path, noise=None) -> list[DesignScore]:
     """Fit and score every design from the cache (``noise`` overrides the scene's)."""
     cal = settings(scene)
     noise = noise or cal.noise

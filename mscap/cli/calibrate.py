@@ -3,14 +3,10 @@ calibration of a design against baselines (pose reconstruction under noise)."""
 
 from __future__ import annotations
 
-import csv
-import json
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
-__all__ = ["add_parser", "run", "designs_from", "write_outputs"]
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
@@ -44,67 +40,13 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-def _designs_from_optimize(scene, directory: Path, baselines: list[str] | None) -> list:
-    """The final layout of an ``mscap optimize`` output directory and its baselines:
-    ``initial`` (rebuilt from the run's k, seed and init: initial layouts are functions
-    of those alone) and ``scene``."""
-    from mscap.calibration.service import CalibrationError, Design
-    from mscap.geometry.initial import initial_layout
-    from mscap.geometry.layout import Layout
-
-    try:
-        outlines = json.loads((directory / "outlines.json").read_text())["outlines_mm"]
-        summary = json.loads((directory / "summary.json").read_text())
-    except (OSError, KeyError, ValueError) as exc:
-        raise CalibrationError(f"{directory}: not an `mscap optimize` output directory "
-                               f"(outlines.json, summary.json): {exc}") from None
-    designs = [Design(f"{directory.name} (optimised)", tuple(np.array(o, dtype=float) for o in outlines))]
-    for b in ["initial"] if baselines is None else baselines:
-        if b == "scene":
-            designs.append(Design("scene layout", scene.layout.outlines))
-        elif b == "initial":
-            init = summary["init"]
-            layout = scene.layout if init == "scene" else initial_layout(scene, int(summary["k"]),
-                                                                          int(summary["seed"]), init)
-            label = "scene layout" if init == "scene" else f"{directory.name}:initial"
-            designs.append(Design(label, Layout(layout.outlines).outlines))
-        else:
-            raise CalibrationError(f"--baseline {b!r}: an `mscap optimize` directory has only the "
-                                   "baselines 'initial' and 'scene'; run ids need a results file")
-    return designs
-
-
-def designs_from(scene, spec: str, baselines: list[str] | None) -> list:
-    """The design named by ``spec`` (a results file, optionally ``:RUN``, or an ``mscap
-    optimize`` output directory) and its baselines, as :class:`~mscap.calibration.service.Design`."""
-    from mscap.calibration.service import Design
-    from mscap.service.store import check_scene, read_design, read_store, split_design_spec
-
-    if Path(spec).is_dir():
-        return _designs_from_optimize(scene, Path(spec), baselines)
-    path, rid = split_design_spec(spec)
-    with read_store(path) as store:
-        check_scene(store, scene)
-        main = read_design(store, rid, "final")
-        designs = [Design(f"{main.label} (optimised)", main.outlines)]
-        for b in ["initial"] if baselines is None else baselines:
-            if b == "scene":
-                designs.append(Design("scene layout", scene.layout.outlines))
-                continue
-            run_id, _, which = b.partition(":")
-            if run_id == "initial":
-                run_id, which = main.run_id, "initial"
-            d = read_design(store, run_id, which or "final")
-            designs.append(Design(d.label, d.outlines))
-    return designs
-
-
 def run(args) -> int:
     from mpi4py import MPI
 
-    from mscap.calibration.service import evaluate, settings, simulate_family
-    from mscap.service.store import split_design_spec
+    from mscap.calibration.report import default_paths, text_report, write_outputs
+    from mscap.calibration.service import CalibrationError, Candidate, evaluate, settings, simulate_family
     from mscap.cli.common import load_scene_for, progress_printer
+    from mscap.service.designs import design_layouts
 
     comm = MPI.COMM_WORLD
     rank = comm.Get_rank()
@@ -113,111 +55,21 @@ def run(args) -> int:
     if args.reference is not None:
         reference = None if args.reference == "none" else args.reference
         if reference is not None and reference not in {p.name for p in scene.poses}:
-            from mscap.calibration.service import CalibrationError
-
             raise CalibrationError(f"--reference {reference!r}: no such pose in {scene.path} "
                                    f"({', '.join(p.name for p in scene.poses)})")
         cal = replace(cal, reference=reference)
         scene = replace(scene, calibration=cal)
-    results_path = Path(split_design_spec(args.design)[0])
-    if results_path.is_dir():       # an `mscap optimize` directory: write inside it
-        default_cache, default_out = results_path / "calibration.h5", results_path / "calibration"
-    else:
-        stem = results_path.with_suffix("")
-        default_cache, default_out = Path(f"{stem}_calibration.h5"), Path(f"{stem}_calibration")
-    cache = Path(args.cache or default_cache)
-    outdir = Path(args.output or default_out)
-    designs = designs_from(scene, args.design, args.baseline)
-    say = progress_printer(args.quiet or rank > 0)
-    simulate_family(scene, designs, cache, comm, progress=say)
+    default_cache, default_out = default_paths(args.design)
+    cache, outdir = Path(args.cache or default_cache), Path(args.output or default_out)
+    designs = [Candidate(label, outlines) for label, outlines in design_layouts(scene, args.design, args.baseline)]
+    simulate_family(scene, designs, cache, comm, progress=progress_printer(args.quiet or rank > 0))
     if rank != 0:
         return 0
-    noise = cal.noise
     overrides = {"runs": args.runs, "seed": args.seed, "relative_shift": args.relative_shift,
                  "additive_pF": args.additive_pF}
-    noise = replace(noise, **{k: v for k, v in overrides.items() if v is not None})
+    noise = replace(cal.noise, **{k: v for k, v in overrides.items() if v is not None})
     scores = evaluate(scene, designs, cache, noise)
     write_outputs(outdir, scene, scores, noise)
-    unit = "mm" if cal.target == "vertices" else "(parameter units)"
-    print(f"{'design':<34} {'k':>2} {'mean error':>16} {'max error':>16}  {unit}, mean ± std over "
-          f"{noise.runs} runs, averaged over {len(cal.sequence)} sequence poses")
-    for s in scores:
-        m = s.errors.summary()
-        print(f"{s.design.label:<34} {s.design.k:>2} {np.nanmean(m['mean_error']):>8.3f} ± "
-              f"{np.nanmean(m['mean_error_std']):<6.3f} {np.nanmean(m['max_error']):>8.3f} ± "
-              f"{np.nanmean(m['max_error_std']):<6.3f}")
-    print(f"{'no signal (mean training pose)':<34} {'':>2} {np.mean(scores[0].no_signal):>8.3f}")
+    print(text_report(scene, scores, noise))
     print(f"wrote {outdir}/errors.csv, summary.json, errors.png")
     return 0
-
-
-def write_outputs(outdir: Path, scene, scores, noise) -> None:
-    """``errors.csv`` (one row per design and sequence pose), ``summary.json`` and the
-    ``errors.png`` figure (the paper's Fig. 15)."""
-    cal = scene.calibration
-    outdir.mkdir(parents=True, exist_ok=True)
-    with open(outdir / "errors.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["design", "k", "pose", *cal.parameters, "in_training_range", "mean_error",
-                    "mean_error_std", "max_error", "max_error_std", "no_signal_mean_error"])
-        for s in scores:
-            m = s.errors.summary()
-            for i, row in enumerate(cal.sequence):
-                w.writerow([s.design.label, s.design.k, i, *[f"{x:.6g}" for x in row], int(cal.in_range[i]),
-                            *[f"{m[c][i]:.6g}" for c in ("mean_error", "mean_error_std", "max_error",
-                                                           "max_error_std")], f"{s.no_signal[i]:.6g}"])
-    summary = {"scene": scene.name, "target": cal.target, "reference_pose": cal.reference,
-               "kernel": cal.kernel, "smoothing": cal.smoothing,
-               "noise": {"relative_shift": noise.relative_shift, "additive_pF": noise.additive_pF,
-                         "runs": noise.runs, "seed": noise.seed},
-               "training_poses": len(cal.training), "sequence_poses": len(cal.sequence),
-               "out_of_range_poses": int((~cal.in_range).sum()), "designs": []}
-    for s in scores:
-        m = s.errors.summary()
-        summary["designs"].append({
-            "label": s.design.label, "k": s.design.k, "training_used": s.training_used,
-            "training_failed": s.training_failed, "rbf_samples": s.samples,
-            "sequence_failed": s.sequence_failed, "simulation_s": s.simulation_s,
-            "mean_error": float(np.nanmean(m["mean_error"])), "mean_error_std": float(np.nanmean(m["mean_error_std"])),
-            "max_error": float(np.nanmean(m["max_error"])), "max_error_std": float(np.nanmean(m["max_error_std"])),
-            "no_signal_mean_error": float(np.nanmean(s.no_signal)),
-            "mean_error_in_range": float(np.nanmean(m["mean_error"][cal.in_range])),
-            "mean_error_out_of_range": (float(np.nanmean(m["mean_error"][~cal.in_range]))
-                                        if (~cal.in_range).any() else None)})
-    (outdir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    figure(outdir / "errors.png", scene, scores)
-
-
-def figure(path: Path, scene, scores) -> None:
-    """Mean and max error per sequence pose, mean ± std over runs, one line per design;
-    out-of-distribution poses shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cal = scene.calibration
-    unit = "mm" if cal.target == "vertices" else "parameter units"
-    x = np.arange(len(cal.sequence))
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
-    for ax, key, title in ((axes[0], "mean_error", "mean per-vertex error"),
-                           (axes[1], "max_error", "max per-vertex error")):
-        for i in np.flatnonzero(~cal.in_range):
-            ax.axvspan(i - 0.5, i + 0.5, color="0.9", lw=0)
-        for s in scores:
-            m = s.errors.summary()
-            line, = ax.plot(x, m[key], lw=1.5, label=f"{s.design.label} (k={s.design.k})")
-            low = np.maximum(m[key] - m[key + "_std"], 0.1 * m[key])  # log axis: keep the band > 0
-            ax.fill_between(x, low, m[key] + m[key + "_std"], color=line.get_color(), alpha=0.2, lw=0)
-        if key == "mean_error" and scores:
-            ax.plot(x, scores[0].no_signal, "k:", lw=1, label="no signal (mean training pose)")
-        ax.set_title(title if cal.target == "vertices" else title.replace("vertex", "parameter"))
-        ax.set_xlabel("sequence pose (grey: outside the training ranges)")
-        ax.set_ylabel(f"{unit}, log scale")
-        ax.set_yscale("log")
-    axes[0].legend(fontsize=7)
-    fig.suptitle(f"{scene.name}: reconstruction error, mean ± std over {scores[0].errors.mean.shape[0]} "
-                 "noisy runs" if scores else scene.name)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)

@@ -4,15 +4,10 @@ from __future__ import annotations
 
 import json
 import time
-from pathlib import Path
 
-import numpy as np
-
-from mscap.fem.electrostatic import build_problem, solve
-from mscap.mesh.io import write_mesh
-from mscap.mesh.layered import mesh_scene
-from mscap.fem.petsc import LinearSolver
 from mscap.cli.common import load_scene_for
+
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
@@ -31,6 +26,12 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    import numpy as np
+
+    from mscap.fem.electrostatic import build_problem, solve
+    from mscap.fem.petsc import LinearSolver
+    from mscap.mesh.layered import mesh_scene
+
     scene = load_scene_for(args)
     order = args.order or scene.mesh.order
     start = time.perf_counter()
@@ -47,12 +48,9 @@ def run(args) -> int:
 
     written = None
     if args.export:
-        out = Path(args.export)
-        out.mkdir(parents=True, exist_ok=True)
-        written = out / "potential.vtu"
-        phi = caps.vertex_potentials(len(mesh.points))
-        data = {_field_name(problem, plate): phi[:, i] for i, plate in enumerate(caps.plates)}
-        write_mesh(written, mesh, point_data=data)
+        from mscap.viz.vtu import write_potentials
+
+        written = write_potentials(args.export, mesh, problem, caps)
 
     if args.json:
         record = {"scene": scene.name, "order": order, "solver": solver.description,
@@ -87,7 +85,3 @@ def run(args) -> int:
         print(f"wrote {written}")
     return 0
 
-
-def _field_name(problem, plate: int) -> str:
-    k = problem.k
-    return f"phi_{plate - k}" if plate >= k else f"phi_bottom_{plate}"

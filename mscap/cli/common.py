@@ -11,7 +11,7 @@ def load_scene_for(args):
     """Initialise PETSc with ``args.petsc_args``, load ``args.scene`` and put its
     ``[petsc]`` entries into the options database (the command line wins)."""
     from mscap.fem.petsc import petsc, set_scene_options
-    from mscap.scene.settings import load_scene
+    from mscap.scene import load_scene
 
     petsc(args.petsc_args)
     scene = load_scene(args.scene)

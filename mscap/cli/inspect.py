@@ -1,13 +1,12 @@
 """``mscap inspect results.h5 [--json | --runs | --run ID]``: the per-k table of a
 multi-start results file, with the chosen k marked, every run's cost and accuracy, or one
-run's history. Accuracy is the run's finer-mesh error estimate (:mod:`mscap.service.accuracy`)."""
+run's history (:mod:`mscap.service.report`)."""
 
 from __future__ import annotations
 
 import json
-import math
 
-__all__ = ["add_parser", "run", "summary_json", "table"]
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
@@ -25,114 +24,19 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-def _error(errors: dict | None, rid) -> float:
-    """The finer-mesh error estimate of run ``rid`` (NaN if unknown)."""
-    return (errors or {}).get(rid, math.nan)
-
-
-def _finite_or_none(x: float):
-    return x if math.isfinite(x) else None
-
-
-def summary_json(selection, errors: dict | None = None) -> dict:
-    """The ``--json`` document of a ``Selection``; ``errors`` maps run ids to their
-    finer-mesh error estimates."""
-    return {"per_k": [{"k": s.k, "runs_ok": s.runs_ok, "runs_failed": s.runs_failed,
-                       "best_metric": s.best_metric, "best_run": s.best_run, "wall_s": s.wall_s,
-                       "best_error_estimate": _finite_or_none(_error(errors, s.best_run)),
-                       "best_bound_mm": s.best_bound_mm}
-                      for s in selection.per_k],
-            "by_bound": selection.by_bound,
-            "chosen_k": selection.chosen_k, "chosen_run": selection.chosen_run,
-            "plateau_tol": selection.plateau_tol, "plateau_reached": selection.plateau_reached,
-            "runs_total": selection.runs_total}
-
-
-def _percent(x: float) -> str:
-    return f"{100 * x:.2f} %" if math.isfinite(x) else "-"
-
-
-def table(selection, title: str = "", errors: dict | None = None) -> str:
-    """The per-k table; ``*`` marks the chosen k. ``error`` is the best run's finer-mesh
-    error estimate, ``time`` the summed wall time of the k's runs."""
-    lines = [title] if title else []
-    bound = selection.by_bound  # runs designed for read-back: best = smallest bound
-    lines.append(f"{'':1} {'k':>3} {'ok':>4} {'failed':>6} "
-                 + (f"{'best bound (mm)':>16} {'min L1 (pF)':>12}" if bound else f"{'best min L1 (pF)':>17}")
-                 + f" {'best run':<20} {'error':>8} {'time (s)':>9}")
-    for s in selection.per_k:
-        mark = "*" if s.k == selection.chosen_k else " "
-        metric = "-" if s.best_metric is None else f"{s.best_metric:.6g}"
-        score = (f"{'-' if s.best_bound_mm is None else format(s.best_bound_mm, '.4g'):>16} {metric:>12}"
-                 if bound else f"{metric:>17}")
-        lines.append(f"{mark} {s.k:>3} {s.runs_ok:>4} {s.runs_failed:>6} {score} "
-                     f"{s.best_run or '-':<20} {_percent(_error(errors, s.best_run)):>8} {s.wall_s:>9.1f}")
-    if selection.chosen_k is None:
-        lines.append("no successful run: no k chosen")
-    else:
-        note = "" if selection.plateau_reached else " (largest k with a successful run: plateau not confirmed)"
-        lines.append(f"* chosen k = {selection.chosen_k}, run {selection.chosen_run}, plateau_tol "
-                     f"{selection.plateau_tol:g}{note}; {selection.runs_total} runs")
-        if bound:
-            lines.append("  (read-back bound: soft max over the design family of the Cramér–Rao bound on the "
-                         "RMS per-vertex error, mm; docs/optimize.md)")
-    return "\n".join(lines)
-
-
-def runs_table(records) -> str:
-    """One line per run: status, iterations, the metric and its value on the finer mesh,
-    the error estimate, the run's wall time and the check's."""
-    lines = [f"{'run':<20} {'status':<6} {'its':>4} {'bound (mm)':>15} {'min L1 (pF)':>12} {'finer (pF)':>11} "
-             f"{'error':>8} {'time (s)':>9} {'check (s)':>9}"]
-    for r in records:
-        def number(x, fmt):
-            return format(x, fmt) if math.isfinite(x) else "-"
-        bound = "-" if not math.isfinite(r.bound_mm) else f"{r.initial_bound_mm:.3g} → {r.bound_mm:.3g}"
-        lines.append(f"{r.id:<20} {r.status:<6} {r.iterations:>4} {bound:>15} {number(r.metric, '.6g'):>12} "
-                     f"{number(r.finer_metric_pF, '.6g'):>11} {_percent(r.error_estimate):>8} {r.wall_s:>9.1f} "
-                     f"{number(r.error_estimate_wall_s, '.1f'):>9}")
-    return "\n".join(lines)
-
-
-def _history(record) -> str:
-    from mscap.service.store import HISTORY_COLUMNS
-
-    lines = [f"run {record.id}: k = {record.k}, seed {record.seed}, init {record.init}, status {record.status}, "
-             f"rank {record.rank}, {record.wall_s:.1f} s, {record.iterations} iterations"
-             + (f" ({record.reason})" if record.reason else "")]
-    if not record.ok:
-        lines.append(f"error: {record.error}")
-    if math.isfinite(record.metric):
-        lines.append(f"min pairwise L1: {record.metric:.6g} pF over {len(record.poses)} design poses: "
-                     + ", ".join(record.poses))
-    if math.isfinite(record.bound_mm):
-        lines.append(f"read-back bound: {record.initial_bound_mm:.4g} mm initial, {record.bound_mm:.4g} mm final "
-                     "(history column d is minus the bound)")
-    if math.isfinite(record.error_estimate):
-        lines.append(f"on a mesh one level finer: min pairwise L1 {record.finer_metric_pF:.6g} pF, capacitances "
-                     f"within {_percent(record.error_estimate)} (check took {record.error_estimate_wall_s:.1f} s)")
-    names = list(HISTORY_COLUMNS)
-    lines.append("\t".join(names))
-    columns = [record.history[n] for n in names]
-    for row in zip(*columns):
-        lines.append("\t".join(v if isinstance(v, str) else f"{v:.6g}" if isinstance(v, float) else str(v)
-                               for v in (x.item() if hasattr(x, "item") else x for x in row)))
-    return "\n".join(lines)
-
-
 def run(args) -> int:
+    from mscap.service.report import error_estimates, history_text, runs_table, summary_json, table
     from mscap.service.store import finished_ids, read_run, read_store, store_selection
 
     with read_store(args.results) as store:
         if args.run_id:
-            print(_history(read_run(store, args.run_id)))
+            print(history_text(read_run(store, args.run_id)))
             return 0
         if args.runs:
             print(runs_table(read_run(store, rid) for rid in sorted(finished_ids(store))))
             return 0
         selection = store_selection(store)
-        errors = {rid: float(store["runs"][rid].attrs.get("error_estimate", math.nan))  # NaN: schema 1
-                  for rid in finished_ids(store)}
+        errors = error_estimates(store)
         if args.json:
             print(json.dumps(summary_json(selection, errors), indent=1))
         else:

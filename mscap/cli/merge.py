@@ -3,9 +3,7 @@ the tasks of a SLURM job array) and recompute the selection."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-__all__ = ["add_parser", "run", "merge"]
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
@@ -20,48 +18,9 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-def merge(inputs, output, force: bool = False) -> int:
-    """Merge ``inputs`` into ``output``; returns the number of runs written.
-
-    Raises ``StoreError`` if the inputs hold different scenes, the output is one of the
-    inputs or exists (without ``force``).
-    """
-    from mscap.service.store import StoreError, read_store, store_selection, write_selection, finished_ids, create_store
-
-    output = Path(output)
-    if any(Path(i).resolve() == output.resolve() for i in inputs):
-        raise StoreError(f"{output}: the output must not be one of the inputs")
-    if output.exists() and not force:
-        raise StoreError(f"{output} exists; use --force to overwrite it")
-    files = [read_store(p) for p in inputs]
-    try:
-        first = files[0]
-        for path, f in zip(inputs[1:], files[1:]):
-            if f.attrs["scene_sha256"] != first.attrs["scene_sha256"]:
-                raise StoreError(f"cannot merge results of different scenes: {inputs[0]} has scene "
-                                 f"{first.attrs['scene_path']} (sha256 {first.attrs['scene_sha256']}), "
-                                 f"{path} has {f.attrs['scene_path']} (sha256 {f.attrs['scene_sha256']})")
-        source = {}
-        for f in files:
-            for rid in sorted(finished_ids(f)):
-                ok = f["runs"][rid].attrs["status"] == "ok"
-                if rid not in source or (ok and source[rid][1] is False):
-                    source[rid] = (f, ok)
-        a = first.attrs
-        with create_store(output, a["scene_toml"], a["scene_sha256"], a["scene_name"], a["scene_path"],
-                     max(int(f.attrs["mpi_size"]) for f in files)) as out:
-            out.attrs["start_time"] = min(str(f.attrs["start_time"]) for f in files)
-            for rid, (f, _) in sorted(source.items()):
-                f.copy(f["runs"][rid], out["runs"], name=rid)
-            out.flush()
-            write_selection(out, store_selection(out))
-        return len(source)
-    finally:
-        for f in files:
-            f.close()
-
-
 def run(args) -> int:
+    from mscap.service.merge import merge
+
     n = merge(args.inputs, args.output, force=args.force)
     print(f"wrote {args.output}: {n} runs from {len(args.inputs)} files")
     return 0

@@ -6,10 +6,7 @@ import json
 import time
 from pathlib import Path
 
-from mscap.mesh.io import write_mesh
-from mscap.mesh.layered import mesh_scene
-from mscap.mesh.quality import mesh_report
-from mscap.scene.settings import load_scene
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
@@ -23,6 +20,11 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    from mscap.mesh.io import write_mesh
+    from mscap.mesh.layered import mesh_scene
+    from mscap.mesh.quality import mesh_report
+    from mscap.scene import load_scene
+
     scene = load_scene(args.scene)
     start = time.perf_counter()
     mesh = mesh_scene(scene)

@@ -3,14 +3,10 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
-import numpy as np
-
-from mscap.fem.elastic.problem import tet_fields
-from mscap.mesh.io import write_mesh
-from mscap.fem.simulate import simulate
 from mscap.cli.common import load_scene_for, progress_printer
+
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub) -> None:
@@ -34,6 +30,8 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     import dataclasses
 
+    from mscap.fem.simulate import simulate
+
     scene = load_scene_for(args)
     if args.poses:
         wanted = args.poses.split(",")
@@ -50,10 +48,9 @@ def run(args) -> int:
 
     files = []
     if args.export:
-        out = Path(args.export)
-        out.mkdir(parents=True, exist_ok=True)
-        for result in sim.poses:
-            files.extend(_export(out, sim, result))
+        from mscap.viz.vtu import write_poses
+
+        files = write_poses(args.export, sim)
 
     iterations = [r.state.newton_iterations if r.state else 0 for r in sim.poses]
     if args.json:
@@ -92,32 +89,3 @@ def run(args) -> int:
         print(f"wrote {f}")
     return 0
 
-
-def _export(directory: Path, sim, result) -> list[Path]:
-    """``<pose>.vtu`` on the electrostatic mesh (displacement, φ_j; J and stress too when
-    the elastic problem shares the mesh) and, for an elastic problem on its own mesh,
-    ``<pose>_elastic.vtu`` with its displacement, J and stress."""
-    mesh, problem = sim.mesh, sim.elastic
-    point_data = {"displacement": result.vertices - mesh.points}
-    phi = result.capacitances.top_potentials[:len(mesh.points)]
-    for j in range(phi.shape[1]):
-        point_data[f"phi_{j}"] = phi[:, j]
-    cell_data = {}
-    written = []
-    if problem is not None:
-        nodes = result.state.nodes if result.state else problem.rest
-        j, stress = tet_fields(problem, nodes)
-        deviator = stress - np.trace(stress, axis1=1, axis2=2)[:, None, None] * np.eye(3) / 3
-        fields = {"J": j, "stress": stress.reshape(-1, 9),
-                  "von_mises": np.sqrt(1.5 * np.einsum("mij,mij->m", deviator, deviator))}
-        if sim.transfer is None:
-            cell_data = fields
-        else:
-            path = directory / f"{result.name}_elastic.vtu"
-            vertices = nodes[:problem.n_vertices]
-            write_mesh(path, problem.mesh, points=vertices,
-                       point_data={"displacement": vertices - problem.mesh.points}, cell_data=fields)
-            written.append(path)
-    path = directory / f"{result.name}.vtu"
-    write_mesh(path, mesh, points=result.vertices, point_data=point_data, cell_data=cell_data)
-    return [path] + written

@@ -40,8 +40,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from mscap.scene.settings import SKINNING_METHODS
 from mscap.errors import MeshError
 from mscap.geometry.layout import Layout
+from mscap.geometry.polygons import segment_projection
 from mscap.mesh.triangulate import TriMesh
 from mscap.mesh.transfer import p1_matrix
 
@@ -50,7 +52,7 @@ __all__ = ["Deformer", "build_deformer", "skinning_weights", "outer_boundary_ver
 
 log = logging.getLogger(__name__)
 
-METHODS = ("bbw", "harmonic")
+METHODS = SKINNING_METHODS
 
 
 @dataclass(frozen=True)
@@ -269,14 +271,12 @@ def outline_chains(mesh: TriMesh, outlines: Sequence[np.ndarray], rel_tol: float
     for i, polygon in enumerate(outlines):
         box = (points >= polygon.min(axis=0) - tol) & (points <= polygon.max(axis=0) + tol)
         near = np.flatnonzero(box.all(axis=1))
-        a, ab = polygon, np.roll(polygon, -1, axis=0) - polygon
-        ap = points[near, None, :] - a[None]
-        t = np.clip(np.einsum("nsk,sk->ns", ap, ab) / np.einsum("sk,sk->s", ab, ab), 0.0, 1.0)
-        distance = np.linalg.norm(ap - t[..., None] * ab, axis=-1)
+        b = np.roll(polygon, -1, axis=0)
+        distance, t, _ = segment_projection(points[near, None, :], polygon[None], b[None])
         segment = np.argmin(distance, axis=1)
         hit = distance[np.arange(len(near)), segment] <= tol
         segment = segment[hit]
-        lengths = np.linalg.norm(ab, axis=1)
+        lengths = np.linalg.norm(b - polygon, axis=1)
         arc = np.concatenate([[0.0], np.cumsum(lengths[:-1])])[segment] + t[hit, segment] * lengths[segment]
         arc[arc >= lengths.sum() - tol] = 0.0  # the first vertex, reached from the last segment
         chain = near[hit][np.argsort(arc)]

@@ -45,11 +45,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from mscap.scene.settings import DISTANCES
 from mscap.fem.elastic.contact import barrier, barrier_derivatives
 from mscap.errors import GeometryError, MscapError
+from mscap.geometry.polygons import segment_projection
 
-__all__ = ["soft_min", "Dissimilarity", "PlateAreaBarrier", "DISTANCES", "capacitance_term", "SeparationBarrier", "LaplacianSmoothing", "Weighted", "Sum",
-           "LayoutObjective", "layout_objective"]
+__all__ = ["soft_min", "Dissimilarity", "PlateAreaBarrier", "DISTANCES", "capacitance_term", "SeparationBarrier",
+           "LaplacianSmoothing", "Weighted", "Sum", "ObjectiveParts", "LayoutObjective", "layout_objective"]
 
 
 def soft_min(values: np.ndarray, tau: float) -> tuple[float, np.ndarray]:
@@ -114,16 +116,6 @@ class Dissimilarity(_Term):
         w[a, b] = weight  # ∂d/∂D_ab: a softmax, summing to 1
         w += w.T
         return value, 2 * np.einsum("ab,abk->ak", w, diff)
-
-
-def _point_edge(p, a, b):
-    """Distance of points ``p`` to segments ``ab`` (pairwise), the closest parameter t and
-    the vector from the closest point to p."""
-    ab, ap = b - a, p - a
-    length2 = np.einsum("ij,ij->i", ab, ab)
-    t = np.clip(np.einsum("ij,ij->i", ap, ab) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-    r = ap - t[:, None] * ab
-    return np.linalg.norm(r, axis=1), t, r
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,14 +195,14 @@ class SeparationBarrier(_Term):
         """B (mm²); ``inf`` when a minimum gap or margin is violated."""
         x, owner, nxt, prv, _ = self._stack(outlines)
         p, e = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
-        d, _, _ = _point_edge(x[p], x[e], x[nxt[e]])
+        d, _, _ = segment_projection(x[p], x[e], x[nxt[e]])
         return float(barrier(d - self._shift(owner, p, e), self.dhat_mm).sum())
 
     def value_and_gradient(self, outlines):
         """B and a tuple of ``(m_i, 2)`` gradients (mm); raises GeometryError if infeasible."""
         x, owner, nxt, prv, sizes = self._stack(outlines)
         p, e = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
-        d, t, r = _point_edge(x[p], x[e], x[nxt[e]])
+        d, t, r = segment_projection(x[p], x[e], x[nxt[e]])
         s = d - self._shift(owner, p, e)
         self._violation(owner, p, e, s)
         on = s < self.dhat_mm
@@ -244,7 +236,7 @@ class SeparationBarrier(_Term):
             return 1.0
         p, e = self._pairs(x, owner, nxt, prv, 2 * speed / (1 - keep), True, v, keep)
         b = nxt[e]
-        d, _, _ = _point_edge(x[p], x[e], x[b])
+        d, _, _ = segment_projection(x[p], x[e], x[b])
         shift = self._shift(owner, p, e)
         self._violation(owner, p, e, d - shift)
         target = shift + keep * (d - shift)
@@ -259,8 +251,8 @@ class SeparationBarrier(_Term):
             p, e, b, target, lipschitz, alpha = (a[live] for a in (p, e, b, target, lipschitz, alpha))
             if not len(p):
                 break
-            d, _, _ = _point_edge(x[p] + alpha[:, None] * v[p], x[e] + alpha[:, None] * v[e],
-                                  x[b] + alpha[:, None] * v[b])
+            d, _, _ = segment_projection(x[p] + alpha[:, None] * v[p], x[e] + alpha[:, None] * v[e],
+                                         x[b] + alpha[:, None] * v[b])
             step = 0.99 * np.maximum(d - target, 0.0) / lipschitz
             alpha = alpha + step
             if (step < 1e-9).any():
@@ -316,23 +308,70 @@ class Sum(_Term):
 
 
 @dataclass(frozen=True)
-class LayoutObjective:
-    """J = capacitance(C) + geometry(outlines), and the barrier's step bound."""
+class ObjectiveParts:
+    """J and its unweighted parts at one design: ``d`` (pF², noise units or −mm),
+    ``barrier`` (separation + plate area) and ``smoothing`` (mm²)."""
 
-    capacitance: _Term
-    geometry: _Term
+    J: float
+    d: float
+    barrier: float
+    smoothing: float
+
+
+@dataclass(frozen=True)
+class LayoutObjective:
+    """The design objective — the one place J is composed:
+
+        J(C, outlines) = −d(C) + w_b (B(outlines) + B_area(outlines)) + w_s S(outlines)
+
+    ``distance`` is d (:func:`capacitance_term`), ``barrier`` the separation barrier B
+    (which also bounds the line search's step), ``area`` the plate-area barrier (``None``
+    without ``max_plate_area_mm2``), ``smoothing`` S."""
+
+    distance: _Term
     barrier: SeparationBarrier
-    area: PlateAreaBarrier | None = None
+    smoothing: LaplacianSmoothing
+    area: PlateAreaBarrier | None
+    barrier_weight: float
+    smoothing_weight: float
+
+    @property
+    def capacitance(self) -> _Term:
+        """The capacitance part of J: −d."""
+        return -1.0 * self.distance
+
+    @property
+    def geometry(self) -> _Term:
+        """The outline part of J: w_b (B + B_area) + w_s S."""
+        geometry = self.barrier_weight * self.barrier + self.smoothing_weight * self.smoothing
+        return geometry if self.area is None else geometry + self.barrier_weight * self.area
+
+    def check_outlines(self, outlines) -> None:
+        """Raise :class:`GeometryError` where the barriers are infinite (outlines closer
+        than the minimum gap, plates over the area limit): before any simulation."""
+        barrier = self.barrier.value(outlines)
+        if not np.isfinite(barrier):
+            raise GeometryError(f"the outlines at this design violate the minimum gap (barrier {barrier})")
+        if self.area is not None and not np.isfinite(self.area.value(outlines)):
+            raise GeometryError("the outlines at this design reach [optimizer] max_plate_area_mm2")
+
+    def parts(self, capacitance_pF: np.ndarray, outlines) -> ObjectiveParts:
+        """J and its parts at capacitances ``(n_poses, k)`` and outlines."""
+        d = self.distance.value(capacitance_pF)
+        barrier = self.barrier.value(outlines) + (0.0 if self.area is None else self.area.value(outlines))
+        smoothing = self.smoothing.value(outlines)
+        J = -d + self.barrier_weight * barrier + self.smoothing_weight * smoothing
+        return ObjectiveParts(float(J), float(d), float(barrier), float(smoothing))
 
     def value(self, capacitance_pF: np.ndarray, outlines) -> float:
-        return self.capacitance.value(capacitance_pF) + self.geometry.value(outlines)
+        return self.parts(capacitance_pF, outlines).J
+
+    def gradients(self, capacitance_pF: np.ndarray, outlines) -> tuple[np.ndarray, tuple]:
+        """``(∂J/∂C (n_poses, k), ∂J/∂outline vertices (one (n_j, 2) per outline))``."""
+        return self.capacitance.gradient(capacitance_pF), self.geometry.value_and_gradient(outlines)[1]
 
     def max_step(self, outlines, directions, keep: float = 0.1) -> float:
         return self.barrier.max_step(outlines, directions, keep)
-
-
-#: ``[optimizer] distance``: how pose capacitance vectors are compared.
-DISTANCES = ("pF", "noise", "reconstruction")
 
 
 def capacitance_term(scene) -> _Term:
@@ -352,13 +391,7 @@ def capacitance_term(scene) -> _Term:
     from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, design_scene
 
     scene = design_scene(scene)
-    if settings.distance == "reconstruction":
-        if scene.design_family is None:
-            from mscap.errors import SceneError
-
-            raise SceneError(scene.path, "optimizer.design_poses",
-                             'distance = "reconstruction" needs poses from the calibration family: '
-                             'set design_poses = "family" or "both"')
+    if settings.distance == "reconstruction":  # design_scene checked there is a family
         return -1.0 * ReconstructionBound(scene.design_family, settings.tau_mm)
     cal = scene.calibration
     noise = cal.noise if cal is not None else NoiseModel()
@@ -410,10 +443,8 @@ def layout_objective(scene, dhat_mm: float | None = None) -> LayoutObjective:
     ``tau_pF2`` / ``tau_noise`` / ``tau_mm``, ``barrier_weight``, ``smoothing_weight``,
     ``max_plate_area_mm2``) and ``[capacitors] min_gap_mm``."""
     settings = scene.optimizer
-    separation = SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm)
-    geometry = settings.barrier_weight * separation + settings.smoothing_weight * LaplacianSmoothing()
     area = PlateAreaBarrier(settings.max_plate_area_mm2) if settings.max_plate_area_mm2 > 0 else None
-    if area is not None:
-        geometry = geometry + settings.barrier_weight * area
-    return LayoutObjective(capacitance=-1.0 * capacitance_term(scene), geometry=geometry, barrier=separation,
-                           area=area)
+    return LayoutObjective(distance=capacitance_term(scene),
+                           barrier=SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm),
+                           smoothing=LaplacianSmoothing(), area=area, barrier_weight=settings.barrier_weight,
+                           smoothing_weight=settings.smoothing_weight)

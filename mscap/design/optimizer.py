@@ -35,53 +35,20 @@ from mscap.design.pipeline import Design, DesignError, Evaluation, build_design
 from mscap.fem.elastic.problem import ElasticError
 from mscap.fem.electrostatic import ElectrostaticError
 from mscap.errors import GeometryError, MeshError
-from mscap.geometry.layout import Layout, check_layout
+from mscap.geometry.layout import Layout, check_layout, min_gap_mm
 from mscap.design.objective import layout_objective
 from mscap.fem.petsc import LinearSolveError
 from mscap.mesh.quality import triangle_angles_deg
 from mscap.mesh.transfer import interpolation_matrix
+from mscap.design.history import HISTORY_FIELDS, Record
 
-__all__ = ["Record", "OptimizeResult", "HISTORY_FIELDS", "optimize", "feasible_step", "max_step_triangles",
-           "remesh", "resample_outline", "min_gap_mm"]
+__all__ = ["OptimizeResult", "optimize", "feasible_step", "max_step_triangles",
+           "remesh", "resample_outline"]
 
 log = logging.getLogger(__name__)
 
-#: History columns, in order: iteration (accepted steps so far), cascade level, J and its
-#: parts (d in pF², barrier and smoothing unweighted, mm²), ‖dJ/dq‖ (2-norm), the step
-#: (largest control displacement, mm), min pairwise L1 distance of the poses'
-#: capacitance vectors (pF), the event ("start", "step", "remesh", "cascade",
-#: "converged", "stalled", "max_iterations"), evaluations in the line search, Newton iterations of all
-#: poses in the accepted evaluation, minimum 2D angle of the electrostatic mesh (deg),
-#: smallest gap between two outlines or an outline and the sheet edge (mm, exact: the
-#: accepted layouts never overlap), wall time since the start (s).
-HISTORY_FIELDS = ("iteration", "level", "J", "d", "barrier", "smoothing", "grad_norm", "step_mm",
-                  "min_l1_pF", "event", "evaluations", "newton_iterations", "min_angle_deg", "min_gap_mm",
-                  "time_s")
-
 #: Failures of a trial design that mean "step too long", not "bug".
 _TRIAL_ERRORS = (ElasticError, ElectrostaticError, GeometryError, LinearSolveError, MeshError)
-
-
-@dataclass(frozen=True)
-class Record:
-    iteration: int
-    level: int
-    J: float
-    d: float
-    barrier: float
-    smoothing: float
-    grad_norm: float
-    step_mm: float
-    min_l1_pF: float
-    event: str
-    evaluations: int
-    newton_iterations: int
-    min_angle_deg: float
-    min_gap_mm: float
-    time_s: float
-
-    def row(self) -> list:
-        return [getattr(self, name) for name in HISTORY_FIELDS]
 
 
 @dataclass(frozen=True)
@@ -131,43 +98,6 @@ def max_step_triangles(points: np.ndarray, triangles: np.ndarray, directions: np
         roots[ok] = np.minimum(roots[ok], r[ok])
     alpha[quad] = roots
     return float(min(1.0, alpha.min(initial=np.inf)))
-
-
-def min_gap_mm(outlines, sheet_outline_mm: np.ndarray) -> float:
-    """Exact smallest distance (mm) between two different outlines, or an outline and the
-    sheet edge (0 if two cross). The closest pair of points of two polylines is a vertex
-    of one and a point of an edge of the other, whose end lies within the vertex–vertex
-    distance plus the longest edge: a k-d tree finds those candidates."""
-    from scipy.spatial import cKDTree
-
-    from mscap.geometry import polygons as geometry
-
-    polygons = [np.asarray(o, dtype=float) for o in outlines]
-    sheet_edges = geometry.edges(np.asarray(sheet_outline_mm, dtype=float))
-    gap = min(float(geometry.point_segment_distance(p, sheet_edges).min()) for p in polygons)
-    trees = [cKDTree(p) for p in polygons]
-    longest = [float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).max()) for p in polygons]
-
-    def edges_near(j, points, radius):
-        """Edges of polygon j with an end within ``radius`` of one of ``points``."""
-        near = trees[j].query_ball_point(points, radius)
-        ends = np.unique(np.concatenate([np.asarray(n, dtype=np.int64) for n in near]))
-        return np.unique(np.r_[ends, (ends - 1) % len(polygons[j])])
-
-    for i, a in enumerate(polygons):
-        for j in range(i + 1, len(polygons)):
-            b = polygons[j]
-            if geometry.points_in_polygon(a[:1], b)[0] or geometry.points_in_polygon(b[:1], a)[0]:
-                return 0.0
-            reach = float(trees[j].query(a)[0].min()) + longest[i] + longest[j]
-            ea, eb = edges_near(i, b, reach), edges_near(j, a, reach)
-            seg_a = np.stack([a[ea], a[(ea + 1) % len(a)]], axis=1)
-            seg_b = np.stack([b[eb], b[(eb + 1) % len(b)]], axis=1)
-            if geometry.segments_cross(seg_a, seg_b).any():
-                return 0.0
-            gap = min(gap, float(geometry.point_segment_distance(np.r_[seg_a[:, 0], seg_a[:, 1]], seg_b).min()),
-                      float(geometry.point_segment_distance(np.r_[seg_b[:, 0], seg_b[:, 1]], seg_a).min()))
-    return gap
 
 
 def _corners(polygon: np.ndarray, degrees: float) -> np.ndarray:

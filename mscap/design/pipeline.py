@@ -33,33 +33,26 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mscap.fem import electrostatic
 from mscap.fem.adjoint import moved, pose_rest_gradient
 from mscap.design.deformer import Deformer, build_deformer
-from mscap.fem.elastic.problem import ElasticError
-from mscap.errors import GeometryError, MscapError, SceneError
-from mscap.fem.elastic.loading import loading_for
-from mscap.fem.elastic.newton import Operator, solve_pose
-from mscap.design.objective import DISTANCES, LaplacianSmoothing, capacitance_term, layout_objective
+from mscap.errors import MscapError
+from mscap.fem.elastic.newton import Operator
+from mscap.design.objective import layout_objective
+from mscap.scene import Scene
+from mscap.scene.loader import check_designable
 from mscap.fem.petsc import LinearSolver
 from mscap.design.readback import design_scene
-from mscap.fem.simulate import PoseResult, Simulation, elastic_setup, simulate
+from mscap.design.history import min_pairwise_l1
+from mscap.fem.simulate import Simulation, elastic_setup, simulate, solve_poses
 from mscap.mesh.transfer import p1_matrix
 
-__all__ = ["DesignError", "Design", "Evaluation", "build_design", "min_pairwise_l1"]
+__all__ = ["DesignError", "Design", "Evaluation", "build_design"]
 
 log = logging.getLogger(__name__)
 
 
 class DesignError(MscapError):
     """A design evaluation produced a non-finite value or cannot be carried out."""
-
-
-def min_pairwise_l1(capacitance_pF: np.ndarray) -> float:
-    """Smallest L1 distance (pF) between the capacitance vectors of two poses."""
-    c = np.asarray(capacitance_pF, dtype=float)
-    a, b = np.triu_indices(len(c), 1)
-    return float(np.abs(c[a] - c[b]).sum(axis=1).min()) if len(a) else 0.0
 
 
 @dataclass(frozen=True)
@@ -110,7 +103,7 @@ class Design:
     the deformer (weights on the electrostatic 2D mesh) and ``elastic_weights`` ``T2d W``
     on the elastic mesh's 2D vertices (``None`` on a shared mesh)."""
 
-    scene: object
+    scene: Scene
     base: Simulation
     deformer: Deformer
     elastic_weights: np.ndarray | None
@@ -145,53 +138,38 @@ class Design:
         (an :class:`Evaluation` of this design, or per-pose displacements)."""
         started = time.perf_counter()
         q = np.array(self.deformer._q(q))
-        scene = self.scene
-        objective = layout_objective(scene)
+        objective = layout_objective(self.scene)
         outlines = self.deformer.outlines(q)
-        barrier = objective.barrier.value(outlines)
-        if not np.isfinite(barrier):
-            raise GeometryError(f"the outlines at this design violate the minimum gap (barrier {barrier})")
-        area = 0.0 if objective.area is None else objective.area.value(outlines)
-        if not np.isfinite(area):
-            raise GeometryError("the outlines at this design reach [optimizer] max_plate_area_mm2")
-        smoothing = LaplacianSmoothing().value(outlines)
-        fine, elastic = self.rest_points(q)
-        sim = moved(self.base, fine, elastic)
-        starts = warm.displacements() if isinstance(warm, Evaluation) else (warm or [None] * len(scene.poses))
+        objective.check_outlines(outlines)
+        sim = moved(self.base, *self.rest_points(q))
+        starts = warm.displacements() if isinstance(warm, Evaluation) else warm
         solver, operator = self._solvers()
-        results, iterations = [], []
-        for i, pose in enumerate(scene.poses):
-            state, vertices = None, sim.mesh.points
-            if pose.kind != "free":
-                state = _equilibrium(sim, scene, i, starts[i], operator)
-                vertices = sim.vertices(state.nodes)
-            caps = electrostatic.solve(sim.electro, vertices, solver=solver)
-            if not np.isfinite(caps.capacitance_pF).all():
-                raise DesignError(f"pose {pose.name!r}: capacitances {caps.capacitance_pF} are not finite")
-            results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, 0.0, 0.0))
-            iterations.append(0 if state is None else state.newton_iterations)
-        sim = replace(sim, poses=tuple(results))
+        results = solve_poses(sim, self.scene, solver, operator, starts, keep_factorisation=True)
+        for result in results:
+            if not np.isfinite(result.capacitance_pF).all():
+                raise DesignError(f"pose {result.name!r}: capacitances {result.capacitance_pF} are not finite")
+        sim = replace(sim, poses=results)
         capacitance = sim.capacitance_pF
-        d = capacitance_term(scene).value(capacitance)
-        settings = scene.optimizer
-        J = -d + settings.barrier_weight * (barrier + area) + settings.smoothing_weight * smoothing
-        if not np.isfinite(J):
-            raise DesignError(f"J = {J} is not finite (d = {d}, barrier = {barrier}, smoothing = {smoothing})")
-        return Evaluation(q, float(J), float(d), float(barrier), float(smoothing), capacitance, sim,
-                          tuple(iterations), time.perf_counter() - started)
+        parts = objective.parts(capacitance, outlines)
+        if not np.isfinite(parts.J):
+            raise DesignError(f"J = {parts.J} is not finite (d = {parts.d}, barrier = {parts.barrier}, "
+                              f"smoothing = {parts.smoothing})")
+        iterations = tuple(0 if r.state is None else r.state.newton_iterations for r in results)
+        return Evaluation(q, parts.J, parts.d, parts.barrier, parts.smoothing, capacitance, sim, iterations,
+                          time.perf_counter() - started)
 
     def gradient(self, q_or_evaluation) -> np.ndarray:
         """``dJ/dq`` ``(c, 2)`` at an :class:`Evaluation` (or at ``q``, evaluated first)."""
         e = q_or_evaluation if isinstance(q_or_evaluation, Evaluation) else self.evaluate(q_or_evaluation)
         if e.released:
             raise DesignError("this evaluation's factorisations were released; evaluate again")
-        scene = self.scene
-        objective = layout_objective(scene)
-        dJ_dC = -capacitance_term(scene).gradient(e.capacitance_pF)
+        outlines = self.deformer.outlines(e.q)
+        dJ_dC, dJ_doutlines = layout_objective(self.scene).gradients(e.capacitance_pF, outlines)
+        # Capacitance part: one elastic adjoint per pose, to both rest meshes.
         g_fine = np.zeros_like(e.sim.mesh.points)
         g_elastic = None if e.sim.elastic is None else np.zeros((e.sim.elastic.n_vertices, 3))
-        for i in range(len(scene.poses)):
-            part = pose_rest_gradient(e.sim, i, dJ_dC[i], scene)
+        for i in range(len(self.scene.poses)):
+            part = pose_rest_gradient(e.sim, i, dJ_dC[i], self.scene)
             g_fine += part.fine
             if g_elastic is not None:
                 g_elastic += part.elastic
@@ -202,11 +180,9 @@ class Design:
             else:
                 n2 = len(self.elastic_weights)
                 grad += self.elastic_weights.T @ g_elastic.reshape(-1, n2, 3)[:, :, :2].sum(axis=0)
-        # Geometry terms: outline vertices are fine-mesh vertices.
-        outlines = self.deformer.outlines(e.q)
-        _, g_geometry = objective.geometry.value_and_gradient(outlines)
+        # Geometry part: outline vertices are fine-mesh vertices.
         g2d = np.zeros((len(self.deformer.rest2d), 2))
-        for chain, g in zip(self.deformer.outline_vertices, g_geometry):
+        for chain, g in zip(self.deformer.outline_vertices, dJ_doutlines):
             np.add.at(g2d, chain, g)
         grad += self.deformer.vjp(g2d)
         if not np.isfinite(grad).all():
@@ -226,28 +202,13 @@ class Design:
         return Design(replace(self.scene, layout=deformer.layout(deformer.zeros())), base, deformer, weights)
 
 
-def _equilibrium(sim: Simulation, scene, i: int, start, operator):
-    """Pose ``i``'s equilibrium at ``sim``'s rest meshes with the factorisation kept: one
-    load step from ``rest + start`` when given, else (or when that fails) the full path."""
-    pose, problem = scene.poses[i], sim.elastic
-    loading = loading_for(problem, pose)
-    if start is not None:
-        warm = problem.rest + start
-        try:
-            return solve_pose(problem, replace(loading, load_steps=1, guess=lambda x, t: warm), scene.elastic,
-                              operator, keep_factorisation=True)
-        except ElasticError as exc:
-            log.warning("pose %s: warm start failed (%s); solving along the full load path", pose.name, exc)
-    return solve_pose(problem, loading, scene.elastic, operator, keep_factorisation=True)
-
-
 def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:
     """``T2d W`` ``(n_el2d, c)``: the skinning weights interpolated (P1 on the deformer's
     mesh) at the elastic mesh's 2D vertices."""
     return np.asarray(p1_matrix(deformer.mesh2d, elastic_mesh2d.points) @ deformer.weights)
 
 
-def build_design(scene, *, layout=None, control_spacing_mm: float | None = None, count=None,
+def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None = None, count=None,
                  method: str | None = None, base: Simulation | None = None) -> Design:
     """Mesh ``scene`` (with ``layout`` in place of its own, if given) and build the design.
 
@@ -256,22 +217,11 @@ def build_design(scene, *, layout=None, control_spacing_mm: float | None = None,
     """
     if layout is not None:
         scene = replace(scene, layout=layout)
+    if method is not None:
+        scene = replace(scene, optimizer=replace(scene.optimizer, skinning=method))
     scene = design_scene(scene)
+    check_designable(scene)
     settings = scene.optimizer
-    from mscap.design.deformer import METHODS
-
-    if (method or settings.skinning) not in METHODS:
-        raise SceneError(scene.path, "optimizer.skinning", f"unknown value {method or settings.skinning!r}; "
-                         f"expected one of {', '.join(METHODS)}")
-    if settings.distance not in DISTANCES:
-        raise SceneError(scene.path, "optimizer.distance", f"unknown value {settings.distance!r}; "
-                         f"expected one of {', '.join(DISTANCES)}")
-    for key in ("control_spacing_mm", "first_step_mm", "max_step_mm", "tau_pF2", "tau_noise", "tau_mm"):
-        if not getattr(settings, key) > 0:
-            raise SceneError(scene.path, f"optimizer.{key}", f"must be > 0, got {getattr(settings, key)!r}")
-    if len(scene.poses) < 2:
-        raise SceneError(scene.path, "poses", f"the design objective compares poses: need at least 2, "
-                         f"got {len(scene.poses)}")
     if base is None:
         base = simulate(replace(scene, poses=()), mesh=None)
         problem, transfer = elastic_setup(scene, base.mesh)

@@ -38,19 +38,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from mscap.scene.calibration import NoiseModel, family_poses
-from mscap.errors import SceneError
+from mscap.scene.loader import check_optimizer, family_grid_counts
+from mscap.scene.settings import Scene
 from mscap.design.objective import _Term, soft_min
 
-__all__ = ["DESIGN_POSES", "DesignFamily", "design_family", "design_scene", "ProtocolDissimilarity",
+__all__ = ["DesignFamily", "design_family", "design_scene", "ProtocolDissimilarity",
            "ReconstructionBound", "reading_variance", "difference_variance", "grid_pose_name", "grid_derivatives"]
-
-#: ``[optimizer] design_poses``: the scene's listed poses, a sub-grid of the calibration
-#: family (with the reference pose), or both.
-DESIGN_POSES = ("listed", "family", "both")
-
-#: Sub-grid points per calibration parameter when ``[optimizer] family_grid`` is not given.
-DEFAULT_FAMILY_COUNT = 2
-
 
 # ---------------------------------------------------------------- noise per protocol
 def reading_variance(capacitance_pF: np.ndarray, reference_pF: np.ndarray | None, noise: NoiseModel):
@@ -137,17 +130,6 @@ def grid_derivatives(axes) -> np.ndarray:
     return np.array(out)
 
 
-def _counts(scene, n_parameters: int) -> tuple[int, ...]:
-    counts = scene.optimizer.family_grid or (DEFAULT_FAMILY_COUNT,) * n_parameters
-    if len(counts) == 1:
-        counts = counts * n_parameters
-    if len(counts) != n_parameters or not all(isinstance(c, int) and c >= 2 for c in counts):
-        raise SceneError(scene.path, "optimizer.family_grid",
-                         f"expected one count >= 2, or one per calibration parameter "
-                         f"({', '.join(scene.calibration.parameters)}), got {list(scene.optimizer.family_grid)!r}")
-    return tuple(counts)
-
-
 def _same_pose(a, b) -> bool:
     if a.kind == "glue" and b.kind == "glue":
         pa, pb = a.vertex_positions(1.0), b.vertex_positions(1.0)
@@ -165,27 +147,18 @@ def _targets(poses, target: str, values: np.ndarray) -> tuple[np.ndarray, int]:
     return np.array([p.vertex_positions(1.0).ravel() for p in poses]), 3
 
 
-def design_family(scene) -> tuple[tuple, DesignFamily | None]:
+def design_family(scene: Scene) -> tuple[tuple, DesignFamily | None]:
     """The design poses of ``scene`` (``[optimizer] design_poses``) and, when they include
     the calibration family, its :class:`DesignFamily`. Grid points take ``family_grid``
     evenly spread members of each training axis (the first and last included)."""
+    check_optimizer(scene.path, scene.optimizer, scene.calibration)
     mode = scene.optimizer.design_poses
-    if mode not in DESIGN_POSES:
-        raise SceneError(scene.path, "optimizer.design_poses",
-                         f"unknown value {mode!r}; expected one of {', '.join(DESIGN_POSES)}")
     if mode == "listed":
         return scene.poses, None
     cal = scene.calibration
-    if cal is None:
-        raise SceneError(scene.path, "optimizer.design_poses",
-                         f"{mode!r} takes poses from the [calibration] family, and this scene has none")
     training = np.asarray(cal.training)
     full_axes = [np.unique(training[:, i]) for i in range(training.shape[1])]
-    counts = _counts(scene, len(full_axes))
-    for name, axis, count in zip(cal.parameters, full_axes, counts):
-        if count > len(axis):
-            raise SceneError(scene.path, "optimizer.family_grid",
-                             f"{count} points along {name!r}, whose training axis has only {len(axis)}")
+    counts = family_grid_counts(scene.path, scene.optimizer, cal)
     axes = tuple(axis[np.round(np.linspace(0, len(axis) - 1, n)).astype(int)] for axis, n in zip(full_axes, counts))
     values = np.array(list(itertools.product(*axes)), dtype=float)
     template = next(p for p in scene.poses if p.name == cal.pose)
@@ -216,13 +189,14 @@ def design_family(scene) -> tuple[tuple, DesignFamily | None]:
     return tuple(poses), family
 
 
-def design_scene(scene):
+def design_scene(scene: Scene) -> Scene:
     """``scene`` with its design poses in place of its listed ones (the same scene when
-    ``design_poses = "listed"``) and ``design_family`` set. Idempotent."""
-    if scene.design_family is not None or scene.optimizer.design_poses == "listed":
+    ``design_poses = "listed"``) and ``design_family`` set; checks ``[optimizer]``
+    (:func:`mscap.scene.loader.check_optimizer`). Idempotent."""
+    if scene.design_family is not None:
         return scene
     poses, family = design_family(scene)
-    return replace(scene, poses=poses, design_family=family)
+    return scene if family is None else replace(scene, poses=poses, design_family=family)
 
 
 # ---------------------------------------------------------------- objective terms

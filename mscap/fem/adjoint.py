@@ -53,7 +53,8 @@ from mscap.fem.elastic.problem import ElasticProblem, node_values, rest_geometry
 from mscap.errors import MscapError
 from mscap.mesh.layered import LayeredMesh
 from mscap.fem.elastic.loading import loading_for
-from mscap.fem.elastic.newton import ElasticState, Loading, NewtonSettings, solve_pose
+from mscap.fem.elastic.newton import ElasticState, Loading, NewtonSettings
+from mscap.fem.simulate import equilibrium
 from mscap.scene.poses import PokePose, StretchPose
 from mscap.fem.profile import timed
 
@@ -293,12 +294,8 @@ def solve_moved_pose(sim, scene, pose_index: int, start: np.ndarray | None = Non
 
     ``start`` is a displacement ``(n_nodes, 3)`` (e.g. of the pose at nearby rest
     positions): Newton then starts from ``rest + start`` in one load step."""
-    pose, problem = scene.poses[pose_index], sim.elastic
+    pose = scene.poses[pose_index]
     if pose.kind == "free":
         return electrostatic.solve(sim.electro, sim.mesh.points), None
-    loading = loading_for(problem, pose)
-    if start is not None:
-        warm = problem.rest + start
-        loading = replace(loading, load_steps=1, guess=lambda x, t: warm)
-    state = solve_pose(problem, loading, settings or scene.elastic)
+    state = equilibrium(sim.elastic, pose, settings or scene.elastic, start=start)
     return electrostatic.solve(sim.electro, sim.vertices(state.nodes)), state

@@ -31,7 +31,8 @@ import scipy.sparse as sp
 
 from mscap.fem import elements as fem
 from mscap.errors import MscapError
-from mscap.mesh.layered import BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE_LAYER, LayeredMesh, tet_values
+from mscap.mesh.layered import (BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE_LAYER, LayeredMesh, tet_values,
+                                 tet_volumes)
 from mscap.fem.petsc import LinearSolver, petsc
 
 __all__ = ["ElectrostaticError", "ElectrostaticProblem", "Capacitances", "build_problem",
@@ -269,7 +270,7 @@ def assemble(problem: ElectrostaticProblem, x: np.ndarray | None = None) -> np.n
     corner = local[:, 0, 0]
     bad = np.flatnonzero(~(np.isfinite(corner) & (corner > 0)))
     if len(bad):
-        vol = fem.volumes(x, problem.tets[bad[:1]])[0]
+        vol = tet_volumes(x, problem.tets[bad[:1]])[0]
         raise ElectrostaticError(f"{len(bad)} dielectric tets are inverted or degenerate at the given "
                                  f"positions (e.g. tet {int(bad[0])}, volume {vol:.3g} mm³)")
     return np.bincount(problem.entry_to_csr, weights=local.ravel(), minlength=len(problem.indices))

@@ -145,13 +145,6 @@ def jacobians(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndar
     return inv, det / 6.0
 
 
-def volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """Signed volumes ``(M,)`` of affine tets (det J / 6), without the inverses."""
-    e0, e1, e2 = _edges(points, tets)
-    c0, c1, c2 = _cross(e1, e2)
-    return (e0[0] * c0 + e0[1] * c1 + e0[2] * c2) / 6.0
-
-
 def _cofactors(points: np.ndarray, tets: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     """``det J · ∇λ_a`` for the four vertices, each as (3, M) component rows, and ``det J``.
 

@@ -8,21 +8,25 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
-from typing import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
 
 from mscap.fem import electrostatic
-from mscap.fem.elastic.problem import ElasticProblem, build_problem
+from mscap.fem.elastic.problem import ElasticError, ElasticProblem, build_problem
 from mscap.mesh.layered import LayeredMesh, mesh_elastic, mesh_scene
 from mscap.fem.elastic.loading import loading_for
-from mscap.fem.elastic.newton import ElasticState, Operator, solve_pose
+from mscap.fem.elastic.newton import ElasticState, NewtonSettings, Operator, solve_pose
 from mscap.fem.petsc import LinearSolver
 from mscap.mesh.transfer import interpolation_matrix
 
-__all__ = ["PoseResult", "Simulation", "simulate", "elastic_setup", "electro_vertices"]
+__all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibrium", "elastic_setup",
+           "electro_vertices"]
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +99,6 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
     progress
         Called with one-line progress messages.
     """
-    say = progress or (lambda message: None)
     start = time.perf_counter()
     mesh = mesh or mesh_scene(scene)
     meshed = time.perf_counter()
@@ -104,23 +107,10 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
     operator = Operator(problem) if problem is not None else None
     solver = LinearSolver("electro_")
     prepared = time.perf_counter()
-    results = []
+    sim = Simulation(scene.name, mesh, problem, electro, (), {}, transfer)
     try:
-        for i, pose in enumerate(scene.poses):
-            t0 = time.perf_counter()
-            state = None
-            vertices = mesh.points
-            if pose.kind != "free":
-                state = solve_pose(problem, loading_for(problem, pose), scene.elastic, operator,
-                                   keep_factorisation=keep_factorisation, progress=progress)
-                vertices = electro_vertices(mesh, problem, transfer, state.nodes)
-            t1 = time.perf_counter()
-            caps = electrostatic.solve(electro, vertices, solver=solver)
-            t2 = time.perf_counter()
-            results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, t1 - t0, t2 - t1))
-            say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: C = "
-                f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
-                f"(elastic {t1 - t0:.2f} s, electrostatic {t2 - t1:.2f} s)")
+        results = solve_poses(sim, scene, solver, operator, keep_factorisation=keep_factorisation,
+                              progress=progress)
     finally:  # PETSc objects free their memory only when destroyed
         solver.destroy()
         if operator is not None:
@@ -133,7 +123,55 @@ def simulate(scene, order: int | None = None, elastic_order: int | None = None,
     times = {"mesh": meshed - start, "setup": prepared - meshed, "elastic": elastic_s,
              "electrostatic": sum(r.electrostatic_s for r in results), "total": end - start,
              "elastic_split": split}
-    return Simulation(scene.name, mesh, problem, electro, tuple(results), times, transfer)
+    return replace(sim, poses=results, times=times)
+
+
+def equilibrium(problem: ElasticProblem, pose, settings: NewtonSettings, operator: Operator | None = None,
+                start: np.ndarray | None = None, keep_factorisation: bool = False,
+                progress: Callable[[str], None] | None = None) -> ElasticState:
+    """One pose's elastic equilibrium on ``problem``.
+
+    With ``start`` (a displacement ``(n_nodes, 3)``, e.g. the pose's at nearby rest
+    positions) Newton starts from ``rest + start`` in one load step; when that fails, or
+    without ``start``, it follows the pose's full load path."""
+    loading = loading_for(problem, pose)
+    if start is not None:
+        warm = problem.rest + start
+        try:
+            return solve_pose(problem, replace(loading, load_steps=1, guess=lambda x, t: warm), settings,
+                              operator, keep_factorisation=keep_factorisation, progress=progress)
+        except ElasticError as exc:
+            log.warning("pose %s: warm start failed (%s); solving along the full load path", pose.name, exc)
+    return solve_pose(problem, loading, settings, operator, keep_factorisation=keep_factorisation,
+                      progress=progress)
+
+
+def solve_poses(sim: Simulation, scene: Scene, solver: LinearSolver, operator: Operator | None,
+                starts: Sequence[np.ndarray | None] | None = None, keep_factorisation: bool = False,
+                progress: Callable[[str], None] | None = None) -> tuple[PoseResult, ...]:
+    """The forward loop: every pose of ``scene`` on ``sim``'s meshes (its own poses are
+    ignored): elastic equilibrium (warm from ``starts[i]`` when given), then capacitances.
+
+    ``solver`` (electrostatic) and ``operator`` (elastic, ``None`` if every pose is free)
+    are reused across poses; the caller owns and destroys them."""
+    say = progress or (lambda message: None)
+    starts = starts if starts is not None else [None] * len(scene.poses)
+    results = []
+    for i, pose in enumerate(scene.poses):
+        t0 = time.perf_counter()
+        state, vertices = None, sim.mesh.points
+        if pose.kind != "free":
+            state = equilibrium(sim.elastic, pose, scene.elastic, operator, starts[i],
+                                keep_factorisation=keep_factorisation, progress=progress)
+            vertices = sim.vertices(state.nodes)
+        t1 = time.perf_counter()
+        caps = electrostatic.solve(sim.electro, vertices, solver=solver)
+        t2 = time.perf_counter()
+        results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, t1 - t0, t2 - t1))
+        say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: C = "
+            f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
+            f"(elastic {t1 - t0:.2f} s, electrostatic {t2 - t1:.2f} s)")
+    return tuple(results)
 
 
 def elastic_setup(scene, mesh: LayeredMesh, order: int | None = None):

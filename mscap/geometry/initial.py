@@ -22,9 +22,11 @@ from mscap.geometry import polygons as geometry
 from mscap.errors import GeometryError
 from mscap.geometry.layout import Layout, check_layout
 
-__all__ = ["INITS", "initial_layout", "random_layout", "lloyd_layout", "lloyd_points", "plate_size_mm"]
+__all__ = ["LAYOUT_INITS", "initial_layout", "random_layout", "lloyd_layout", "lloyd_points", "plate_size_mm"]
 
-INITS = ("random", "lloyd", "scene")
+#: Every ``init`` :func:`initial_layout` accepts (``mscap optimize --init``); the
+#: multi-start schedules the seeded ones, :data:`mscap.service.selection.MULTISTART_INITS`.
+LAYOUT_INITS = ("random", "lloyd", "scene")
 
 
 def plate_size_mm(scene) -> float:
@@ -124,4 +126,4 @@ def initial_layout(scene, k: int | None, seed: int, init: str) -> Layout:
         return random_layout(scene, k, seed)
     if init == "lloyd":
         return lloyd_layout(scene, k, seed)
-    raise GeometryError(f"unknown init {init!r}; expected one of {', '.join(INITS)}")
+    raise GeometryError(f"unknown init {init!r}; expected one of {', '.join(LAYOUT_INITS)}")

@@ -13,7 +13,7 @@ import numpy as np
 from mscap.geometry import polygons as geometry
 from mscap.errors import GeometryError
 
-__all__ = ["Layout", "grid_layout", "check_layout", "SHAPES"]
+__all__ = ["Layout", "grid_layout", "check_layout", "min_gap_mm", "SHAPES"]
 
 SHAPES = ("square", "disk", "rounded_square")
 
@@ -98,3 +98,18 @@ def check_layout(layout: Layout, sheet_outline: np.ndarray, min_gap_mm: float) -
             if gap < min_gap_mm:
                 raise GeometryError(f"capacitors {i} and {j} are {gap:.4g} mm apart; "
                                     f"the minimum gap is {min_gap_mm:g} mm", j)
+
+
+def min_gap_mm(outlines, sheet_outline_mm: np.ndarray) -> float:
+    """Smallest distance (mm) between two different outlines, or an outline and the sheet
+    edge: the gap :func:`check_layout` holds to ``min_gap_mm`` (0 if two outlines overlap
+    or one holds the other)."""
+    polygons = [np.asarray(o, dtype=float) for o in outlines]
+    sheet = np.asarray(sheet_outline_mm, dtype=float)
+    gap = min(geometry.boundary_distance(p, sheet) for p in polygons)
+    for i, a in enumerate(polygons):
+        for b in polygons[i + 1:]:
+            if geometry.points_in_polygon(a[:1], b)[0] or geometry.points_in_polygon(b[:1], a)[0]:
+                return 0.0
+            gap = min(gap, geometry.boundary_distance(a, b))
+    return gap

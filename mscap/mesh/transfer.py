@@ -8,9 +8,7 @@ functions, so ``u_fine = T u_elastic`` and, for adjoints, ``∂/∂u_elastic = T
 It is exact where the two discretisations agree: P1 fields restricted to a shared level
 are the 2D P1 fields of that level.
 
-Point location is vectorised: the k nearest triangle centroids (``scipy.spatial.cKDTree``)
-are candidates, the one with the largest smallest barycentric coordinate wins, and k
-doubles for the few points not yet inside a candidate.
+Points are located in the 2D triangulation by :class:`mscap.mesh.locate.TriangleLocator`.
 """
 
 from __future__ import annotations
@@ -20,23 +18,10 @@ import scipy.sparse as sp
 
 from mscap.fem import elements as fem
 from mscap.errors import MeshError
+from mscap.mesh.locate import TOLERANCE, TriangleLocator
 from mscap.mesh.triangulate import TriMesh
 
 __all__ = ["locate", "p1_matrix", "interpolation_matrix"]
-
-#: A point counts as inside a triangle or tet when every barycentric coordinate is above
-#: ``-TOLERANCE`` (points on shared edges and on the sheet boundary sit at round-off).
-TOLERANCE = 1e-9
-
-
-def _barycentric_2d(mesh: TriMesh, triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Barycentric coordinates ``(..., 3)`` of ``points`` ``(..., 2)`` in ``triangles`` ``(...)``."""
-    a, b, c = (mesh.points[mesh.triangles[triangles, i]] for i in range(3))
-    e1, e2, r = b - a, c - a, points - a
-    det = e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]
-    l1 = (r[..., 0] * e2[..., 1] - r[..., 1] * e2[..., 0]) / det
-    l2 = (e1[..., 0] * r[..., 1] - e1[..., 1] * r[..., 0]) / det
-    return np.stack([1.0 - l1 - l2, l1, l2], axis=-1)
 
 
 def locate(mesh: TriMesh, points: np.ndarray, candidates: int = 8) -> tuple[np.ndarray, np.ndarray]:
@@ -48,32 +33,14 @@ def locate(mesh: TriMesh, points: np.ndarray, candidates: int = 8) -> tuple[np.n
     MeshError
         When a point lies outside the triangulation.
     """
-    from scipy.spatial import cKDTree
-
     points = np.asarray(points, dtype=float)
-    centroids = mesh.points[mesh.triangles].mean(axis=1)
-    tree = cKDTree(centroids)
-    triangle = np.zeros(len(points), dtype=np.int64)
-    score = np.full(len(points), -np.inf)
-    todo = np.arange(len(points))
-    k = min(candidates, len(centroids))
-    while len(todo):
-        _, near = tree.query(points[todo], k=k)
-        near = near.reshape(len(todo), -1)
-        best = _barycentric_2d(mesh, near, points[todo][:, None, :]).min(axis=2)
-        pick = np.argmax(best, axis=1)
-        triangle[todo] = near[np.arange(len(todo)), pick]
-        score[todo] = best[np.arange(len(todo)), pick]
-        if k == len(centroids):
-            break
-        todo = todo[score[todo] < -TOLERANCE]
-        k = min(4 * k, len(centroids))
-    outside = np.flatnonzero(score < -TOLERANCE)
+    triangle, bary = TriangleLocator(mesh.points, mesh.triangles).locate(points, candidates)
+    outside = np.flatnonzero(triangle < 0)
     if len(outside):
         p = points[outside[0]]
         raise MeshError(f"{len(outside)} points lie outside the triangulation, e.g. "
                         f"({p[0]:.6g}, {p[1]:.6g}) mm")
-    bary = np.clip(_barycentric_2d(mesh, triangle, points), 0.0, None)
+    bary = np.clip(bary, 0.0, None)
     return triangle, bary / bary.sum(axis=1, keepdims=True)
 
 

@@ -247,7 +247,8 @@ def _check_family(t: Table, template, names, training, sequence) -> None:
     the extremes of each set), checked here so a bad range fails at load time."""
     if template.kind != "glue" or template.object.generator is None:
         return
-    from mscap.bodies.registry import GENERATORS, ParameterError
+    from mscap.bodies.kinematics import ParameterError
+    from mscap.bodies.registry import GENERATORS
 
     function = GENERATORS[template.object.generator]
     uv = template.object.rest.uv

@@ -1,4 +1,6 @@
-"""Scene files: a TOML description of the sheet, its layers, its capacitors and poses.
+"""What a scene holds: the sheet, its layers, capacitors, poses and every settings table,
+as frozen dataclasses, and the allowed values of each choice (read by
+:mod:`mscap.scene.loader`, which checks them all).
 
 Units. Scene keys carry their unit in the name (``_mm``, ``_MPa``, ``_pF2``); the one
 conversion happens here: relative permittivity becomes absolute permittivity in pF/mm.
@@ -12,23 +14,17 @@ Everything loaded is a frozen dataclass; every bad value raises
 from __future__ import annotations
 
 import hashlib
-import tomllib
-import typing
-from dataclasses import dataclass, replace
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
-from mscap.geometry import polygons as geometry
-from mscap.scene._toml import Table
-from mscap.errors import GeometryError, SceneError
-from mscap.scene.calibration import CalibrationSettings, read_calibration
-from mscap.scene.poses import read_pose
-from mscap.geometry.layout import SHAPES, Layout, check_layout, grid_layout
+from mscap.geometry.layout import Layout
+from mscap.scene.calibration import CalibrationSettings
 
 __all__ = [
     "EPSILON0_PF_PER_MM", "Material", "Layer", "MeshSettings", "ElasticSettings", "OptimizerSettings",
-    "MultistartSettings", "Scene", "load_scene", "LAYER_KINDS", "POSE_KINDS",
+    "MultistartSettings", "Scene", "LAYER_KINDS", "POSE_KINDS", "HESSIAN_MODES", "ELASTIC_MESHES",
+    "SKINNING_METHODS", "DISTANCES", "DESIGN_POSES", "DEFAULT_FAMILY_COUNT", "MAX_STARTS_PER_K",
 ]
 
 #: Vacuum permittivity, 8.8541878128e-12 F/m, in pF/mm.
@@ -41,6 +37,17 @@ POSE_KINDS = ("free", "stretch", "poke", "glue")
 HESSIAN_MODES = ("auto", "exact", "projected")
 #: Where the elastic problem lives (``[elastic] mesh``).
 ELASTIC_MESHES = ("own", "shared")
+#: Skinning weights of the deformer (``[optimizer] skinning``, :mod:`mscap.design.deformer`).
+SKINNING_METHODS = ("bbw", "harmonic")
+#: ``[optimizer] distance``: how pose capacitance vectors are compared
+#: (:func:`mscap.design.objective.capacitance_term`).
+DISTANCES = ("pF", "noise", "reconstruction")
+#: ``[optimizer] design_poses`` (:mod:`mscap.design.readback`).
+DESIGN_POSES = ("listed", "family", "both")
+#: Grid points per calibration parameter when ``family_grid`` is not given.
+DEFAULT_FAMILY_COUNT = 2
+#: Start indices are 0..999 per k (a start's seed is scene seed · 10⁶ + k · 10³ + index).
+MAX_STARTS_PER_K = 1000
 
 
 @dataclass(frozen=True)
@@ -203,274 +210,3 @@ class Scene:
     def sha256(self) -> str:
         """Hash of the scene file's text (identifies results of this scene)."""
         return hashlib.sha256(self.source.encode()).hexdigest()
-
-
-def load_scene(path: str | Path) -> Scene:
-    """Read and validate a scene file.
-
-    Raises
-    ------
-    SceneError
-        On any unreadable, unknown, missing, mistyped or out-of-range entry.
-    """
-    path = str(path)
-    try:
-        source = Path(path).read_text()
-    except OSError as exc:
-        raise SceneError(path, "", f"cannot read scene file ({exc.strerror})") from None
-    try:
-        data = tomllib.loads(source)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(path, "", f"not valid TOML: {exc}") from None
-    root = Table(path, "", data)
-
-    name = root.get("name", str, Path(path).stem)
-    description = root.get("description", str, "")
-    sheet = _read_sheet(root.table("sheet"))
-    materials = _read_materials(root.table("materials"))
-    layers = _read_layers(root, materials)
-    mesh = _read_mesh(root.table("mesh"))
-    layout, min_gap = _read_capacitors(root.table("capacitors"), sheet, mesh)
-    objects = _read_objects(root, path)
-    poses = _read_poses(root, objects)
-    _check_pose_geometry(path, poses, sheet)
-    elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
-    if elastic.order not in (1, 2):
-        raise SceneError(path, "elastic.order", f"must be 1 or 2, got {elastic.order!r}")
-    if not elastic.tolerance > 0:
-        raise SceneError(path, "elastic.tolerance", f"must be > 0, got {elastic.tolerance!r}")
-    if elastic.mesh not in ELASTIC_MESHES:
-        raise SceneError(path, "elastic.mesh",
-                         f"unknown value {elastic.mesh!r}; expected one of {', '.join(ELASTIC_MESHES)}")
-    for key in ("edge_length_mm", "edge_length_outline_mm"):
-        value = getattr(elastic, key)
-        if value is not None and not value > 0:
-            raise SceneError(path, f"elastic.{key}", f"must be > 0, got {value!r}")
-    if elastic.hessian not in HESSIAN_MODES:
-        raise SceneError(path, "elastic.hessian",
-                         f"unknown value {elastic.hessian!r}; expected one of {', '.join(HESSIAN_MODES)}")
-    optimizer = _read_dataclass(root.table("optimizer", required=False), OptimizerSettings)
-    multistart = _read_dataclass(root.table("multistart", required=False), MultistartSettings)
-    if multistart.k_min > multistart.k_max:
-        raise SceneError(path, "multistart.k_min",
-                         f"k_min = {multistart.k_min} exceeds k_max = {multistart.k_max}")
-    petsc = _read_petsc(root.table("petsc", required=False))
-    calibration = read_calibration(root.table("calibration", required=False), poses)
-    optimizer = _objective_defaults(optimizer, data.get("optimizer", {}), calibration)
-    root.finish()
-    sheet.setflags(write=False)
-    return Scene(path=path, name=name, description=description, sheet_outline_mm=sheet,
-                 layers=layers, layout=layout, min_gap_mm=min_gap, mesh=mesh, poses=poses, elastic=elastic,
-                 optimizer=optimizer, multistart=multistart, petsc_options=petsc, source=source,
-                 calibration=calibration)
-
-
-def _read_sheet(t: Table) -> np.ndarray:
-    if t.has("outline_mm"):
-        outline = np.array(t.points("outline_mm"))
-        if len(outline) < 3:
-            raise t.error("outline_mm", f"a polygon needs at least 3 points, got {len(outline)}")
-        crossings = geometry.self_intersections(outline)
-        if crossings:
-            a, b = crossings[0]
-            raise t.error("outline_mm", f"the sheet outline intersects itself (edges {a} and {b})")
-        if abs(geometry.signed_area(outline)) == 0:
-            raise t.error("outline_mm", "the sheet outline has zero area")
-    else:
-        if not t.has("width_mm") and not t.has("height_mm"):
-            raise t.error("outline_mm", "missing: give outline_mm, or width_mm and height_mm")
-        w = t.get("width_mm", float, positive=True)
-        h = t.get("height_mm", float, positive=True)
-        outline = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
-    t.finish()
-    return geometry.ccw(outline)
-
-
-def _read_materials(t: Table) -> dict[str, Material]:
-    materials = {}
-    for name in t.data:
-        m = t.table(name)
-        e = m.get("youngs_modulus_MPa", float, positive=True)
-        nu = m.get("poisson_ratio", float)
-        if not -1.0 < nu < 0.5:
-            raise m.error("poisson_ratio", f"must lie in (-1, 0.5), got {nu!r}")
-        eps_r = m.get("relative_permittivity", float)
-        if eps_r < 1.0:
-            raise m.error("relative_permittivity", f"must be >= 1, got {eps_r!r}")
-        m.finish()
-        materials[name] = Material(name, e, nu, eps_r)
-    if not materials:
-        raise t.error("", "no materials defined")
-    return materials
-
-
-def _material(t: Table, key: str, materials: dict[str, Material]) -> Material:
-    name = t.get(key, str)
-    if name not in materials:
-        raise t.error(key, f"unknown material {name!r}; defined: {', '.join(sorted(materials))}")
-    return materials[name]
-
-
-def _read_layers(root: Table, materials: dict[str, Material]) -> tuple[Layer, ...]:
-    tables = root.tables("layers")
-    if len(tables) != len(LAYER_KINDS):
-        raise root.error("layers", f"a sensor has exactly 5 layers "
-                         f"({', '.join(LAYER_KINDS)}, bottom to top), got {len(tables)}")
-    layers = []
-    for t, expected in zip(tables, LAYER_KINDS):
-        kind = t.get("kind", str)
-        if kind != expected:
-            raise t.error("kind", f"expected {expected!r} at this position of the stack "
-                          f"({', '.join(LAYER_KINDS)}, bottom to top), got {kind!r}")
-        thickness = t.get("thickness_mm", float)
-        if not thickness > 0:
-            raise t.error("thickness_mm", f"must be > 0, got {thickness!r}")
-        fill = _material(t, "fill", materials) if kind == "conductive" else None
-        layers.append(Layer(t.get("name", str), kind, thickness, _material(t, "material", materials), fill))
-        t.finish()
-    return tuple(layers)
-
-
-def _read_mesh(t: Table) -> MeshSettings:
-    far = t.get("edge_length_mm", float, positive=True)
-    near = t.get("edge_length_outline_mm", float, positive=True)
-    if near > far:
-        raise t.error("edge_length_outline_mm", f"{near!r} exceeds edge_length_mm = {far!r}")
-    grading = t.get("grading_distance_mm", float, positive=True)
-    per_layer = t.get("elements_per_layer", int, 1, minimum=1)
-    order = t.get("order", int, 1)
-    if order not in (1, 2):
-        raise t.error("order", f"must be 1 or 2, got {order!r}")
-    t.finish()
-    return MeshSettings(far, near, grading, per_layer, order)
-
-
-def _read_capacitors(t: Table, sheet: np.ndarray, mesh: MeshSettings) -> tuple[Layout, float]:
-    min_gap = t.get("min_gap_mm", float, 1.0, minimum=0.0)
-    if t.has("outlines_mm") == t.has("grid"):
-        raise t.error("outlines_mm", "give exactly one of 'outlines_mm' (explicit polygons) "
-                      "or a [capacitors.grid] table")
-    if t.has("outlines_mm"):
-        polygons = t.get("outlines_mm", list)
-        if not polygons:
-            raise t.error("outlines_mm", "no capacitors given")
-        layout = Layout(tuple(np.array(t.points("", p, key=f"{t.key('outlines_mm')}[{j}]"))
-                              for j, p in enumerate(polygons)))
-        where = lambda j: t.key("outlines_mm") + ("" if j is None else f"[{j}]")  # noqa: E731
-    else:
-        g = t.table("grid")
-        shape = g.get("shape", str)
-        if shape not in SHAPES:
-            raise g.error("shape", f"unknown shape {shape!r}; expected one of {', '.join(SHAPES)}")
-        rows = g.get("rows", int, minimum=1)
-        columns = g.get("columns", int, minimum=1)
-        size = g.get("size_mm", float, positive=True)
-        if isinstance(g.data.get("pitch_mm"), list):
-            pitch = tuple(g.get("pitch_mm", list))
-            if len(pitch) != 2 or not all(isinstance(p, (int, float)) and p > 0 for p in pitch):
-                raise g.error("pitch_mm", f"expected a positive number or [px, py], got {list(pitch)!r}")
-        else:
-            pitch = (g.get("pitch_mm", float, positive=True),) * 2
-        lo, hi = sheet.min(axis=0), sheet.max(axis=0)
-        center = g.points("", [g.get("center_mm", list, list(0.5 * (lo + hi)))], key=g.key("center_mm"))[0]
-        radius = 0.0
-        if shape == "rounded_square":
-            radius = g.get("corner_radius_mm", float, positive=True)
-            if radius > 0.5 * size:
-                raise g.error("corner_radius_mm", f"{radius!r} exceeds half the size ({0.5 * size!r})")
-        g.finish()
-        layout = grid_layout(shape, rows, columns, size, pitch, center,
-                             mesh.edge_length_outline_mm, radius)
-        where = lambda j: g.prefix  # noqa: E731
-    t.finish()
-    try:
-        check_layout(layout, sheet, min_gap)
-    except GeometryError as exc:
-        raise SceneError(t.path, where(exc.capacitor), str(exc)) from None
-    return layout, min_gap
-
-
-def _read_objects(root: Table, path: str) -> dict:
-    """Glue objects (``[objects.*]``), read only when a scene has them."""
-    t = root.table("objects", required=False)
-    if t is None:
-        return {}
-    from mscap.bodies.glue import read_objects
-
-    return read_objects(t, path)
-
-
-def _check_pose_geometry(path: str, poses: tuple, sheet: np.ndarray) -> None:
-    """Every glued pose's object must cover the whole placed sheet; every ball must be
-    centred over the sheet."""
-    for i, pose in enumerate(poses):
-        if pose.kind == "poke":
-            lo, hi = sheet.min(axis=0), sheet.max(axis=0)
-            x, y = pose.center_mm
-            if not (lo[0] < x < hi[0] and lo[1] < y < hi[1]):
-                raise SceneError(path, f"poses[{i}].center_mm",
-                                 f"({x:g}, {y:g}) mm lies outside the sheet "
-                                 f"[{lo[0]:g}, {hi[0]:g}] × [{lo[1]:g}, {hi[1]:g}] mm")
-        if pose.kind == "glue":
-            from mscap.bodies.glue import check_covers
-
-            try:
-                check_covers(pose, sheet)
-            except GeometryError as exc:
-                raise SceneError(path, f"poses[{i}]", str(exc)) from None
-
-
-def _read_poses(root: Table, objects: dict) -> tuple:
-    poses, seen = [], set()
-    for t in root.tables("poses", required=False):
-        name = t.get("name", str)
-        if name in seen:
-            raise t.error("name", f"duplicate pose name {name!r}")
-        seen.add(name)
-        kind = t.get("kind", str)
-        if kind not in POSE_KINDS:
-            raise t.error("kind", f"unknown pose kind {kind!r}; expected one of {', '.join(POSE_KINDS)}")
-        poses.append(read_pose(t, objects))
-    return tuple(poses)
-
-
-def _objective_defaults(optimizer: OptimizerSettings, given: dict, calibration) -> OptimizerSettings:
-    """A scene with a ``[calibration]`` designs for read-back unless its ``[optimizer]``
-    says otherwise: ``distance = "reconstruction"`` on ``design_poses = "family"``
-    (docs/results.md, "Designing for read-back", measured it against the paper's pF
-    objective on every calibrated scene). Without one, the paper's ``"pF"`` on the
-    listed poses."""
-    if calibration is None or "distance" in given or given.get("design_poses") == "listed":
-        return optimizer
-    return replace(optimizer, distance="reconstruction",
-                   design_poses=given.get("design_poses", "family"))
-
-
-def _read_dataclass(t: Table | None, cls):
-    if t is None:
-        return cls()
-    values = {}
-    hints = typing.get_type_hints(cls)
-    for field, default in cls().__dict__.items():
-        kind = type(default) if default is not None else typing.get_args(hints[field])[0]
-        if kind is tuple:
-            values[field] = t.integers(field, default)
-            continue
-        values[field] = t.get(field, kind, default, minimum=0 if kind in (int, float) else None)
-    t.finish()
-    return cls(**values)
-
-
-def _read_petsc(t: Table | None) -> tuple[tuple[str, str], ...]:
-    if t is None:
-        return ()
-    options = []
-    for key, value in t.data.items():
-        if isinstance(value, bool):
-            value = "true" if value else "false"
-        elif isinstance(value, (int, float, str)):
-            value = str(value)
-        else:
-            raise t.error(key, f"expected a string, number or boolean, got {value!r}")
-        options.append((key.lstrip("-"), value))
-    return tuple(options)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from mscap.design.pipeline import min_pairwise_l1
+from mscap.design.history import min_pairwise_l1
 
 __all__ = ["ErrorEstimate", "finer", "estimate_error"]
 

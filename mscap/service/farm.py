@@ -7,15 +7,20 @@ result to a callback; a worker says "ready", then loops: receive a task, send ba
 result, until told to stop. Tasks and results are pickled Python objects. SIGTERM (what
 SLURM sends at the time limit) and Ctrl-C set :class:`Stop`, which makes the master hand
 out nothing more.
+
+:func:`run` is the one skeleton both services use: workers serve, the master plans its
+tasks and records results, and a stop leaves what was recorded and aborts busy workers.
 """
 
 from __future__ import annotations
 
 import signal
 import time
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, TypeVar
 
-__all__ = ["TAGS", "Stop", "farm", "serve", "release"]
+Result = TypeVar("Result")
+
+__all__ = ["TAGS", "Stop", "farm", "serve", "release", "run"]
 
 #: Message tags between master and workers, in one place.
 TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4}
@@ -77,3 +82,54 @@ def release(comm) -> None:
     early, e.g. on a refused file; the workers must not wait forever)."""
     for worker in range(1, comm.Get_size()):
         comm.send(None, dest=worker, tag=TAGS["stop"])
+
+
+#: ``execute(tasks, record)``: the master's one call that gets every task done.
+Execute = Callable[[Iterable, Callable[[Any], None]], None]
+
+
+def run(comm, make_work: Callable[[], Callable[[Any], Any]],
+        master: Callable[[Execute, Stop], Result], stopped_message: str,
+        say: Callable[[str], None]) -> Result | None:
+    """The MPI master/worker skeleton of every service.
+
+    Ranks > 0 serve ``make_work()`` until told to stop and return ``None``. Rank 0 returns
+    ``master(execute, stop)``: the master opens its files, plans its tasks and calls
+    ``execute(tasks, record)`` once, which runs them here on a single rank or farms them
+    out, calling ``record(result)`` for each. If the master fails before ``execute`` the
+    workers are released; SIGTERM or Ctrl-C set ``stop`` (nothing more is handed out, the
+    master closes its files as usual), then rank 0 says ``stopped_message`` and aborts the
+    workers still busy (a busy start cannot be interrupted otherwise)."""
+    if comm.Get_rank() != 0:
+        serve(comm, make_work())
+        return None
+    stop, farming = Stop(), False
+
+    def execute(tasks: Iterable, record: Callable[[Any], None]) -> None:
+        nonlocal farming
+        farming = True
+        try:
+            if comm.Get_size() == 1:
+                work = make_work()
+                for task in tasks:
+                    if stop.requested:
+                        break
+                    record(work(task))
+            else:
+                farm(comm, tasks, record, stop)
+        except KeyboardInterrupt:
+            stop.requested = True
+
+    try:
+        result = master(execute, stop)
+    except BaseException:
+        if not farming:
+            release(comm)  # let the workers go before the error reaches main()
+        raise
+    finally:
+        stop.restore()
+    if stop.requested:
+        say(stopped_message)
+        if comm.Get_size() > 1:
+            comm.Abort(0)
+    return result

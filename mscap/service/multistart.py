@@ -26,12 +26,12 @@ from typing import Callable
 
 from mscap.service.accuracy import estimate_error
 from mscap.design.readback import ReconstructionBound
-from mscap.service.farm import TAGS, Stop, farm, release, serve
+from mscap.service import farm
 from mscap.service.selection import StartConfig, configurations, select
 from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
     write_selection
 
-__all__ = ["TAGS", "run_start", "run_multistart"]
+__all__ = ["run_start", "run_multistart"]
 
 log = logging.getLogger(__name__)
 
@@ -99,26 +99,19 @@ def run_multistart(scene, path: str, comm=None, force: bool = False, retry_faile
         from mpi4py import MPI
 
         comm = MPI.COMM_WORLD
-    if comm.Get_rank() != 0:
-        _worker(scene, comm, max_iterations)
-        return None
-    return _master(scene, path, comm, force, retry_failed, select_configs, max_iterations,
-                   progress or (lambda m: None))
-
-
-def _worker(scene, comm, max_iterations) -> None:
     rank = comm.Get_rank()
-    serve(comm, lambda config: run_start(scene, config, rank, max_iterations))
+
+    def master(execute, stop) -> dict:
+        return _master(scene, path, comm.Get_size(), force, retry_failed, select_configs, execute, stop,
+                       progress or (lambda m: None))
+
+    return farm.run(comm, lambda: (lambda config: run_start(scene, config, rank, max_iterations)), master,
+                    "stopped: the finished runs are stored; rerun the same command to complete the rest",
+                    progress or (lambda m: None))
 
 
-def _master(scene, path, comm, force, retry_failed, select_configs, max_iterations, say) -> dict:
-    size = comm.Get_size()
-    try:
-        store = open_store(path, scene, mpi_size=size, force=force)
-    except Exception:
-        release(comm)  # let the workers go before the error reaches main()
-        raise
-    stop = Stop()
+def _master(scene, path, size, force, retry_failed, select_configs, execute, stop, say) -> dict:
+    store = open_store(path, scene, mpi_size=size, force=force)
     done = failed = 0
     try:
         finished = finished_ids(store, failed=not retry_failed)
@@ -147,23 +140,11 @@ def _master(scene, path, comm, force, retry_failed, select_configs, max_iteratio
             say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
                 f"{total - done} left, ETA {eta:.0f} s")
 
-        if size == 1:
-            for config in todo:
-                if stop.requested:
-                    break
-                record(run_start(scene, config, 0, max_iterations))
-        else:
-            farm(comm, todo, record, stop)
-    except KeyboardInterrupt:
-        stop.requested = True
+        execute(todo, record)
     finally:
-        stop.restore()
         selection = select(run_summaries(store), scene.multistart.plateau_tol,
                            range(scene.multistart.k_min, scene.multistart.k_max + 1))
         write_selection(store, selection)
         store.close()
-    if stop.requested and size > 1:
-        say("stopped: the finished runs are stored; rerun the same command to complete the rest")
-        comm.Abort(0)  # workers busy with a start cannot be interrupted otherwise
     return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested}
 

@@ -12,14 +12,14 @@ import math
 from dataclasses import dataclass
 from typing import Iterable, Sequence
 
-__all__ = ["StartConfig", "RunSummary", "KSummary", "Selection", "INITS", "MAX_STARTS_PER_K",
+from mscap.scene.loader import check_multistart
+
+__all__ = ["StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS",
            "run_id", "configurations", "choose_k", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
 
-#: Initial-layout rules of the multi-start service (see ``mscap.geometry.initial``).
-INITS = ("lloyd", "random")
-
-#: Seeds are ``base · 10⁶ + k · 10³ + index``, so the index must stay below 10³.
-MAX_STARTS_PER_K = 1000
+#: The ``init`` kinds the multi-start schedules, in order (:func:`configurations`: Lloyd
+#: starts first, then random ones); a subset of :data:`mscap.geometry.initial.LAYOUT_INITS`.
+MULTISTART_INITS = ("lloyd", "random")
 
 #: One-line statement of the k rule, stored beside the choice in ``/selection``.
 SELECTION_RULE = ("chosen k = smallest k with a successful run such that no larger k with a successful "
@@ -58,11 +58,7 @@ def configurations(scene) -> list[StartConfig]:
     """
     ms = scene.multistart
     n = ms.starts_per_k
-    if not 0 <= n < MAX_STARTS_PER_K:
-        from mscap.errors import SceneError
-
-        raise SceneError(scene.path, "multistart.starts_per_k",
-                         f"must be in 0..{MAX_STARTS_PER_K - 1}, got {n!r}")
+    check_multistart(scene.path, ms)
     # round() first: 0.2 * 25 is 5.000000000000001 in floating point and must give 5.
     n_lloyd = min(n, math.ceil(round(ms.lloyd_fraction * n, 9)))
     return [StartConfig(k, ms.seed * 1_000_000 + k * 1000 + index, "lloyd" if index < n_lloyd else "random")

@@ -22,17 +22,17 @@ import numpy as np
 
 from mscap import __version__
 from mscap.service.accuracy import relative_difference
-from mscap.design.pipeline import min_pairwise_l1
+from mscap.design.history import min_pairwise_l1
 from mscap.errors import MscapError
-from mscap.design.optimizer import HISTORY_FIELDS
+from mscap.design.history import HISTORY_FIELDS
+from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
 from mscap.service.selection import SELECTION_RULE_BOUND, RunSummary, Selection, select, SELECTION_RULE, run_id
 
 __all__ = ["StoreError", "RunRecord", "FORMAT", "SCHEMA_VERSION", "ROOT_ATTRS", "RUN_ATTRS",
            "RUN_DATASETS", "HISTORY_COLUMNS", "SELECTION_ITEMS", "TEMP_PREFIX", "open_store", "create_store", "read_store",
            "finished_ids", "write_run", "read_run", "run_summaries", "write_selection", "store_selection",
-           "record_from_result", "failed_record", "scene_settings", "schema_markdown",
-           "StoredDesign", "split_design_spec", "check_scene", "read_design"]
+           "record_from_result", "failed_record", "scene_settings", "schema_markdown"]
 
 log = logging.getLogger(__name__)
 
@@ -429,8 +429,8 @@ def run_summaries(store: h5py.File) -> list[RunSummary]:
 
 def scene_settings(store: h5py.File) -> MultistartSettings:
     """The ``[multistart]`` settings of the stored scene text (defaults filled in)."""
-    data = tomllib.loads(store.attrs["scene_toml"]).get("multistart", {})
-    return MultistartSettings(**data)
+    return read_multistart(tomllib.loads(store.attrs["scene_toml"]).get("multistart", {}),
+                           f"{store.filename} (stored scene)")
 
 
 def store_selection(store: h5py.File) -> Selection:
@@ -465,74 +465,3 @@ def write_selection(store: h5py.File, selection: Selection) -> None:
         del store["selection"]
     store.move(temp, "selection")
     store.flush()
-
-
-
-# ---------------------------------------------------------------- designs for later stages
-@dataclass(frozen=True, eq=False)
-class StoredDesign:
-    """One layout taken from a results file, for calibration and readout.
-
-    ``label`` says where it came from (``"k3_s1_lloyd"``, ``"k3_s1_lloyd:initial"``);
-    ``capacitance_pF`` is ``(n_poses, k)`` over the scene's poses ``poses``.
-    """
-
-    label: str
-    run_id: str
-    which: str
-    outlines: tuple[np.ndarray, ...]
-    poses: tuple[str, ...]
-    capacitance_pF: np.ndarray
-
-
-def split_design_spec(spec: str) -> tuple[str, str | None]:
-    """``"results.h5:RUN"`` → ``("results.h5", "RUN")``; ``"results.h5"`` → ``(…, None)``."""
-    path, sep, rid = str(spec).rpartition(":")
-    if not sep or not path.endswith((".h5", ".hdf5")):
-        return str(spec), None
-    return path, rid or None
-
-
-def check_scene(store: h5py.File, scene) -> None:
-    """A later stage (calibration, read-out) given ``scene`` for this file: the scene's
-    name must match the stored one; a changed scene text (e.g. a ``[calibration]`` added
-    after the runs) is only logged.
-
-    Raises
-    ------
-    StoreError
-        The file holds results of a scene of another name.
-    """
-    stored = str(store.attrs["scene_name"])
-    if stored != scene.name:
-        raise StoreError(f"{store.filename} holds results of scene {stored!r} ({store.attrs['scene_path']}), "
-                         f"not of {scene.path} (scene {scene.name!r})")
-    if store.attrs["scene_sha256"] != scene.sha256:
-        log.warning("%s: scene %s changed since the results were written (sha256 differs)",
-                    store.filename, scene.path)
-
-
-def read_design(store: h5py.File, rid: str | None = None, which: str = "final") -> StoredDesign:
-    """The ``which`` (``"final"`` or ``"initial"``) layout of run ``rid`` of an open
-    results file; ``rid=None`` takes the run the selection chose.
-
-    Raises
-    ------
-    StoreError
-        No such run, a failed run, or no chosen run in the file.
-    """
-    if which not in ("final", "initial"):
-        raise ValueError(f"which must be 'final' or 'initial', got {which!r}")
-    if rid is None:
-        rid = store_selection(store).chosen_run
-        if not rid:
-            raise StoreError(f"{store.filename}: no successful run to choose a design from; "
-                             "name one as FILE.h5:RUN")
-    record = read_run(store, rid)
-    if not record.ok:
-        raise StoreError(f"{store.filename}: run {rid!r} failed ({record.error}); it has no design")
-    outlines = record.final_outlines if which == "final" else record.initial_outlines
-    capacitance = record.final_capacitance_pF if which == "final" else record.initial_capacitance_pF
-    label = rid if which == "final" else f"{rid}:initial"
-    return StoredDesign(label=label, run_id=rid, which=which, outlines=outlines, poses=record.poses,
-                        capacitance_pF=np.array(capacitance, dtype=float))

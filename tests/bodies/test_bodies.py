@@ -1,4 +1,4 @@
-"""The pneumatic and hand generators (mscap/bodies/shapes.py) and the biaxial, pneumatic and
+"""The pneumatic and hand generators (mscap/bodies/pneumatic.py, hand.py) and the biaxial, pneumatic and
 glove scenes: exact kinematics, parameter checks, the scenes' poses, one optimisation step."""
 
 from __future__ import annotations
@@ -12,11 +12,13 @@ from scipy.spatial.transform import Rotation
 
 from mscap.geometry import polygons as geometry
 from mscap.scene._toml import Table
-from mscap.bodies.shapes import FINGERS, _hand_bend, hand, pneumatic
+from mscap.bodies.hand import FINGERS, _hand_bend, hand
+from mscap.bodies.pneumatic import pneumatic
 from mscap.errors import SceneError
-from mscap.bodies.registry import GENERATORS, cylinder
+from mscap.bodies.basic import cylinder
+from mscap.bodies.registry import GENERATORS
 from mscap.bodies.glue import _grid, check_covers, read_glue_pose, read_objects
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 
 JOBS = Path(__file__).resolve().parents[2] / "jobs"
 SCENES = ("biaxial", "biaxial_quick", "pneumatic", "pneumatic_quick", "glove", "glove_quick")

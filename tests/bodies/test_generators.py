@@ -11,9 +11,11 @@ from scipy.spatial.transform import Rotation
 
 from mscap.scene._toml import Table
 from mscap.errors import SceneError
-from mscap.bodies.registry import GENERATORS, ParameterError, _wrist_bend, cantilever, cylinder, wrist
+from mscap.bodies.basic import _wrist_bend, cantilever, cylinder, wrist
+from mscap.bodies.kinematics import ParameterError
+from mscap.bodies.registry import GENERATORS
 from mscap.bodies.glue import _grid, check_covers, read_glue_pose, read_objects
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 
 JOBS = Path(__file__).resolve().parents[2] / "jobs"
 SCENES = ("wrist", "wrist_quick", "joystick", "joystick_quick")

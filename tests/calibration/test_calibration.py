@@ -15,12 +15,12 @@ import h5py
 import numpy as np
 import pytest
 
-from mscap.calibration.service import CalibrationError, Design, evaluate, family, physics_sha256, simulate_family, \
+from mscap.calibration.service import CalibrationError, Candidate, evaluate, family, physics_sha256, simulate_family, \
     targets
 from mscap.scene.calibration import NoiseModel
 from mscap.errors import SceneError
 from mscap.calibration.reconstruction import fit, point_errors, score
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 from mscap.service.store import RunRecord, open_store, write_run
 
 from tests.conftest import SMALL_SCENE, to_toml
@@ -161,7 +161,7 @@ class _OneRank:
 
 def designs(scene):
     base = tuple(np.array(o) for o in scene.layout.outlines)
-    return [Design("given", base), Design("moved", (base[0] + [1.0, 0.0], base[1] - [1.0, 0.0]))]
+    return [Candidate("given", base), Candidate("moved", (base[0] + [1.0, 0.0], base[1] - [1.0, 0.0]))]
 
 
 def test_noise_free_reconstruction_is_exact_on_training_poses(write_scene, tmp_path):

@@ -12,8 +12,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mscap.design.pipeline import build_design, min_pairwise_l1
-from mscap.scene.settings import load_scene
+from mscap.design.pipeline import build_design
+from mscap.design.history import min_pairwise_l1
+from mscap.scene import load_scene
+from mscap.testing import taylor_test
 from tests.conftest import to_toml
 from tests.fem.test_adjoint import glue_scene
 from tests.fem.test_elastic import poke_scene_dict, scene_dict
@@ -97,23 +99,16 @@ def test_whole_objective_taylor_and_central_differences(design):
     base = d.evaluate(q0)
     grad = d.gradient(base)
     delta = rng.uniform(-1, 1, grad.shape)
-    slope = float(np.vdot(grad, delta))
-
-    def J(h):
-        return d.evaluate(q0 + h * delta, warm=base).J
-
-    steps = 0.02 / 2.0 ** np.arange(5)
-    remainders = np.array([abs(J(h) - base.J - h * slope) for h in steps])
-    rates = np.log2(remainders[:-1] / remainders[1:])
+    taylor = taylor_test(lambda q: d.evaluate(q, warm=base).J, q0, delta, grad, value=base.J,
+                         h0=0.02, halvings=4, central_step=2e-5)
+    remainders, steps, slope = taylor.second_order, taylor.steps, taylor.slope
     # The noise distance saturates once the poses differ by many noise widths (a pose pair's
     # z² tends to its bound C_ref²/Var), so its J is more curved than its slope: the
     # remainder at the smallest step is ~9 % of the first-order change there, at rate 2.
     relative = 0.15 if name == "glue_noise" else 0.05
-    assert remainders[-1] < relative * abs(steps[-1] * slope), (name, remainders, slope)
-    np.testing.assert_allclose(rates, 2.0, atol=0.2, err_msg=f"{name}: {remainders}")
-    h = 2e-5
-    central = (J(h) - J(-h)) / (2 * h)
-    assert slope == pytest.approx(central, rel=1e-5), name
+    assert remainders[-1] < relative * abs(steps[-1] * slope), (name, str(taylor))
+    np.testing.assert_allclose(taylor.rates, 2.0, atol=0.2, err_msg=f"{name}:\n{taylor}")
+    assert slope == pytest.approx(taylor.central, rel=1e-5), name
 
 
 def test_min_pairwise_l1():

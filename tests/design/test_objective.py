@@ -10,7 +10,8 @@ from mscap.fem.elastic.contact import barrier
 from mscap.errors import GeometryError, MscapError
 from mscap.design.objective import (Dissimilarity, LaplacianSmoothing, SeparationBarrier, Sum,
                              Weighted, layout_objective)
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
+from mscap.testing import taylor_test
 
 SHEET = geometry.square((0.0, 0.0), 40.0)
 
@@ -30,14 +31,9 @@ def check_gradient(term, x, rng, h0, geometric=True):
     x0 = flat(x) if geometric else np.ravel(x)
     value, grad = term.value_and_gradient(wrap(x0))
     grad = flat(grad) if geometric else np.ravel(grad)
-    dx = rng.standard_normal(x0.size)
-    slope = grad @ dx
-    hs = h0 / 2.0 ** np.arange(5)
-    remainder = [abs(term.value(wrap(x0 + h * dx)) - value - h * slope) for h in hs]
-    rates = np.log2(np.array(remainder[:-1]) / remainder[1:])
-    h = 1e-3 * h0
-    central = (term.value(wrap(x0 + h * dx)) - term.value(wrap(x0 - h * dx))) / (2 * h)
-    return rates, abs(central - slope) / abs(slope)
+    result = taylor_test(lambda v: term.value(wrap(v)), x0, rng.standard_normal(x0.size), grad,
+                         value=value, h0=h0, halvings=4, central_step=1e-3 * h0)
+    return result.rates, result.central_error
 
 
 def brute_dissimilarity(c, tau):

@@ -16,9 +16,10 @@ from mscap.geometry import polygons as geometry
 from mscap.cli import main
 from mscap.design.pipeline import build_design
 from mscap.geometry.layout import check_layout
-from mscap.design.optimizer import (HISTORY_FIELDS, _LBFGS, feasible_step, max_step_triangles, optimize, remesh,
+from mscap.design.history import HISTORY_FIELDS
+from mscap.design.optimizer import (_LBFGS, feasible_step, max_step_triangles, optimize, remesh,
                             resample_outline)
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 from tests.conftest import grid_trimesh, to_toml
 from tests.fem.test_elastic import scene_dict
 

@@ -17,7 +17,7 @@ from mscap.errors import GeometryError, SceneError
 from mscap.design.objective import PlateAreaBarrier, capacitance_term
 from mscap.design.readback import (DesignFamily, ProtocolDissimilarity, ReconstructionBound, _difference_matrix,
                             design_scene, grid_derivatives, difference_variance, reading_variance)
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 from mscap.service.selection import RunSummary, select
 from tests.design.test_objective import check_gradient
 

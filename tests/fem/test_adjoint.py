@@ -22,8 +22,9 @@ from mscap.fem.elastic import neohookean
 from mscap.fem.elastic.contact import Ball
 from mscap.fem.elastic.problem import assemble, build_problem
 from mscap.fem.elastic.loading import top_surface
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 from mscap.fem.simulate import simulate
+from mscap.testing import taylor_test
 from tests.conftest import to_toml
 from tests.fem.test_elastic import grid_mesh, poke_scene_dict, scene_dict, stack, strained
 
@@ -164,35 +165,34 @@ def test_pose_gradient_taylor_and_central_differences(simulated, slide):
     v = rng.normal(size=2)
     v /= np.linalg.norm(v)
     lo, hi = sim.mesh.mesh2d.points.min(axis=0), sim.mesh.mesh2d.points.max(axis=0)
-    d_fine = smooth_field(sim.mesh.points, lo, hi, v, slide)
-    d_elastic = smooth_field(sim.elastic.mesh.points, lo, hi, v, slide)
+    fine, elastic = sim.mesh.points, sim.elastic.mesh.points
+    # Both meshes' rest points in one vector x, moved together along δ = (δ_fine, δ_elastic).
+    x0 = np.concatenate([fine.ravel(), elastic.ravel()])
+    delta = np.concatenate([smooth_field(fine, lo, hi, v, slide).ravel(),
+                            smooth_field(elastic, lo, hi, v, slide).ravel()])
     for i, result in enumerate(sim.poses):
         g = adjoint.pose_rest_gradient(sim, i, weights, scene)
-        slope = np.vdot(g.fine, d_fine) + np.vdot(g.elastic, d_elastic)
         if sim.transfer is None and result.state is not None:
             assert not g.fine.any()  # shared mesh: everything is in the elastic part
         start = None if result.state is None else result.state.nodes - sim.elastic.rest
 
-        def J(h):
-            moved = adjoint.moved(sim, sim.mesh.points + h * d_fine, sim.elastic.mesh.points + h * d_elastic)
+        def J(x):
+            moved = adjoint.moved(sim, x[:fine.size].reshape(fine.shape), x[fine.size:].reshape(elastic.shape))
             caps, _ = adjoint.solve_moved_pose(moved, scene, i, start=start)
             return weights @ caps.capacitance_pF
 
-        J0 = weights @ result.capacitance_pF
-        steps = 0.01 / 2.0 ** np.arange(5)
-        remainders = np.array([abs(J(h) - J0 - h * slope) for h in steps])
-        rates = np.log2(remainders[:-1] / remainders[1:])
+        taylor = taylor_test(J, x0, delta, np.concatenate([g.fine.ravel(), g.elastic.ravel()]),
+                             value=weights @ result.capacitance_pF, h0=0.01, halvings=4, central_step=2e-5)
+        remainders, steps, slope = taylor.second_order, taylor.steps, taylor.slope
         # First order dominates (a zero gradient would fail here, a wrong one below);
         # measured 1e-6 to 6e-3 (the poke, whose barrier curves the most).
-        assert remainders[-1] < 0.05 * abs(steps[-1] * slope), (name, result.name, remainders, slope)
+        assert remainders[-1] < 0.05 * abs(steps[-1] * slope), (name, result.name, str(taylor))
         # Measured within 2 ± 0.03, except the poke: 1.87, 1.93, 1.96, 1.98 from h = 0.02
         # mm, within 2 ± 0.07 from 0.01 mm (the barrier's third derivative is large).
-        np.testing.assert_allclose(rates, 2.0, atol=0.2, err_msg=f"{name}/{result.name}: {remainders}")
-        h = 2e-5
-        central = (J(h) - J(-h)) / (2 * h)
-        # Measured 4e-10 to 1.3e-7 relative (the poke's truncation error alone is 4e-7 at
-        # h = 1e-4, so h is small).
-        assert slope == pytest.approx(central, rel=1e-5), (name, result.name)
+        np.testing.assert_allclose(taylor.rates, 2.0, atol=0.2, err_msg=f"{name}/{result.name}:\n{taylor}")
+        # Central difference at h = 2e-5: measured 4e-10 to 1.3e-7 relative (the poke's
+        # truncation error alone is 4e-7 at h = 1e-4, so h is small).
+        assert slope == pytest.approx(taylor.central, rel=1e-5), (name, result.name)
 
 
 def test_a_gradient_needs_the_kept_factorisation(simulated):

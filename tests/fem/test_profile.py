@@ -39,7 +39,7 @@ def test_an_unknown_kind_is_refused():
 def test_a_simulation_reports_every_kind(write_scene, small_scene_dict):
     """The kernels mark themselves: a poked scene spends measurable time in each kind,
     and the kinds never exceed the wall time."""
-    from mscap.scene.settings import load_scene
+    from mscap.scene import load_scene
     from mscap.fem.simulate import simulate
 
     small_scene_dict["poses"].append({"name": "press", "kind": "poke", "center_mm": [8.0, 10.0],

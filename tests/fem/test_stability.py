@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from mscap.fem.elastic.problem import ElasticError
-from mscap.scene.settings import ElasticSettings, load_scene
+from mscap.scene.settings import ElasticSettings
+from mscap.scene import load_scene
 from mscap.fem.simulate import simulate
 
 SCENES = Path(__file__).resolve().parents[2] / "benchmarks" / "scenes"

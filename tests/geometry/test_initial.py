@@ -8,7 +8,7 @@ import pytest
 from mscap.errors import GeometryError
 from mscap.geometry.initial import initial_layout, lloyd_points, plate_size_mm, random_layout
 from mscap.geometry.layout import check_layout
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 
 
 @pytest.fixture(scope="module")

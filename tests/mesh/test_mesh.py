@@ -13,7 +13,7 @@ from mscap.mesh.io import read_mesh, write_mesh
 from mscap.mesh.layered import CONDUCTIVE_LAYERS, extrude, mesh_scene
 from mscap.mesh.triangulate import TriMesh
 from mscap.mesh.quality import aspect_ratios, dihedral_angles_deg, triangle_angles_deg
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 
 from tests.conftest import SMALL_SCENE, to_toml
 

@@ -17,7 +17,8 @@ from mscap.mesh.layered import extrude, layer_fractions, mesh_elastic, mesh_scen
 from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import NewtonSettings, solve_pose
 from mscap.scene.poses import StretchPose
-from mscap.scene.settings import ElasticSettings, load_scene
+from mscap.scene.settings import ElasticSettings
+from mscap.scene import load_scene
 from mscap.fem.simulate import simulate
 from mscap.mesh.transfer import interpolation_matrix, locate
 from tests.conftest import grid_trimesh, to_toml

@@ -19,7 +19,7 @@ from mscap.scene.calibration import NoiseModel
 from mscap.readout.array import (C_OFF_PF, C_ON_PF, CapacitorArray, ReadoutError, all_patterns,
                            check_rank, error_bound, grid_array, ideal_readings, measurement_matrix, noise_gain,
                            recover, simulate_readout)
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 from mscap.service.store import open_store, write_run
 from tests.conftest import synthetic_record
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mscap.service.accuracy import estimate_error, finer, relative_difference
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 from mscap.fem.simulate import simulate
 from tests.conftest import SMALL_SCENE
 

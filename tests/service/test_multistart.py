@@ -93,7 +93,7 @@ def test_every_run_stores_its_finer_mesh_check(three_ranks, scene_file):
 
     from mscap.service.accuracy import finer, relative_difference
     from mscap.geometry.layout import Layout
-    from mscap.scene.settings import load_scene
+    from mscap.scene import load_scene
     from mscap.fem.simulate import simulate
 
     out, _ = three_ranks
@@ -141,7 +141,7 @@ def test_an_interrupted_job_resumes_with_only_the_missing_runs(scene_file, tmp_p
     from mpi4py import MPI
 
     from mscap.service import multistart
-    from mscap.scene.settings import load_scene
+    from mscap.scene import load_scene
 
     scene = load_scene(scene_file)
     out = tmp_path / "resume.h5"
@@ -170,7 +170,7 @@ def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_pat
 
     from mscap.service import multistart
     from mscap.errors import MeshError
-    from mscap.scene.settings import load_scene
+    from mscap.scene import load_scene
 
     real = design.build_design
 

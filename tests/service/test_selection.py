@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 
 from mscap.errors import SceneError
-from mscap.scene.settings import load_scene
+from mscap.scene import load_scene
 from mscap.service.selection import RunSummary, StartConfig, choose_k, configurations, run_id, select
 
 TOL = 0.05

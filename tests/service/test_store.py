@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from mscap.cli import main
-from mscap.cli.merge import merge
-from mscap.design.pipeline import min_pairwise_l1
-from mscap.design.optimizer import HISTORY_FIELDS
-from mscap.scene.settings import load_scene
+from mscap.service.merge import merge
+from mscap.design.history import min_pairwise_l1
+from mscap.design.history import HISTORY_FIELDS
+from mscap.scene import load_scene
 from mscap.service.selection import configurations
 from mscap.service.store import (ROOT_ATTRS, RUN_ATTRS, RUN_DATASETS, SELECTION_ITEMS, TEMP_PREFIX,
                          RunRecord, StoreError, failed_record, finished_ids, open_store, read_run, read_store,
@@ -36,7 +36,7 @@ def writer_script(path, scene, first_seed: int, then: str) -> str:
     return textwrap.dedent(f"""
         import os, signal, sys
         sys.path.insert(0, {str(ROOT)!r})
-        from mscap.scene.settings import load_scene
+        from mscap.scene import load_scene
         from mscap.service.store import open_store, write_run, TEMP_PREFIX
         from tests.conftest import synthetic_record
         store = open_store({str(path)!r}, load_scene({scene.path!r}))
@@ -129,7 +129,7 @@ def test_record_from_result(scene):
     from types import SimpleNamespace
 
     from mscap.geometry.layout import Layout
-    from mscap.design.optimizer import Record
+    from mscap.design.history import Record
 
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     before, after = Layout((square, square + 2)), Layout((square * 1.5, square + 3))
@@ -328,7 +328,7 @@ def test_docs_match_schema():
 def test_a_file_of_another_schema_version_is_refused(tmp_path):
     import h5py
 
-    from mscap.scene.settings import load_scene
+    from mscap.scene import load_scene
     from mscap.service.store import SCHEMA_VERSION, StoreError, open_store
     from tests.conftest import SMALL_SCENE, to_toml
 
@@ -345,7 +345,7 @@ def test_a_file_of_another_schema_version_is_refused(tmp_path):
 
 
 def test_read_design_takes_the_chosen_or_named_run(tmp_path, scene):
-    from mscap.service.store import read_design, split_design_spec
+    from mscap.service.designs import read_design, split_design_spec
 
     assert split_design_spec("out/a.h5") == ("out/a.h5", None)
     assert split_design_spec("out/a.h5:k2_s0001_random") == ("out/a.h5", "k2_s0001_random")

@@ -8,8 +8,8 @@ import struct
 import pytest
 
 from mscap.cli import main
-from mscap.cli.plot import PANEL_SIZE_IN, grid_shape, panels
-from mscap.scene.settings import load_scene
+from mscap.viz.layouts import PANEL_SIZE_IN, grid_shape, panels
+from mscap.scene import load_scene
 from mscap.service.selection import RunSummary, select
 from mscap.service.store import failed_record, open_store, store_selection, write_run
 from tests.conftest import synthetic_record

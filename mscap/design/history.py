@@ -1,0 +1,52 @@
+"""What an optimisation records: its history columns, one row per event, and the
+paper's separation metric. Light on purpose (numpy only): the HDF5 store reads and
+writes histories without loading the FEM stack."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["HISTORY_FIELDS", "Record", "min_pairwise_l1"]
+
+#: History columns, in order: iteration (accepted steps so far), cascade level, J and its
+#: parts (d in pF², barrier and smoothing unweighted, mm²), ‖dJ/dq‖ (2-norm), the step
+#: (largest control displacement, mm), min pairwise L1 distance of the poses'
+#: capacitance vectors (pF), the event ("start", "step", "remesh", "cascade",
+#: "converged", "stalled", "max_iterations"), evaluations in the line search, Newton iterations of all
+#: poses in the accepted evaluation, minimum 2D angle of the electrostatic mesh (deg),
+#: smallest gap between two outlines or an outline and the sheet edge (mm, exact: the
+#: accepted layouts never overlap), wall time since the start (s).
+HISTORY_FIELDS = ("iteration", "level", "J", "d", "barrier", "smoothing", "grad_norm", "step_mm",
+                  "min_l1_pF", "event", "evaluations", "newton_iterations", "min_angle_deg", "min_gap_mm",
+                  "time_s")
+
+
+@dataclass(frozen=True)
+class Record:
+    iteration: int
+    level: int
+    J: float
+    d: float
+    barrier: float
+    smoothing: float
+    grad_norm: float
+    step_mm: float
+    min_l1_pF: float
+    event: str
+    evaluations: int
+    newton_iterations: int
+    min_angle_deg: float
+    min_gap_mm: float
+    time_s: float
+
+    def row(self) -> list:
+        return [getattr(self, name) for name in HISTORY_FIELDS]
+
+
+def min_pairwise_l1(capacitance_pF: np.ndarray) -> float:
+    """Smallest L1 distance (pF) between the capacitance vectors of two poses."""
+    c = np.asarray(capacitance_pF, dtype=float)
+    a, b = np.triu_indices(len(c), 1)
+    return float(np.abs(c[a] - c[b]).sum(axis=1).min()) if len(a) else 0.0

@@ -1,0 +1,206 @@
+"""The figure of a multi-start results file (``mscap plot``): the best optimised layout
+per k, the chosen k highlighted, and the best metric against k (paper Fig. 10); and
+:func:`draw_layout`, the layout drawing every figure shares."""
+
+from __future__ import annotations
+
+import logging
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Panel", "panels", "grid_shape", "plot_results", "draw_layout", "PANEL_SIZE_IN", "CHOSEN_COLOUR",
+           "MAX_COLUMNS"]
+
+log = logging.getLogger(__name__)
+
+#: Size of one grid panel (width, height) in inches; the figure is ``ncols × nrows`` of them.
+PANEL_SIZE_IN = (3.2, 3.0)
+#: Frame and title colour of the chosen k.
+CHOSEN_COLOUR = "crimson"
+#: At most this many panels per row.
+MAX_COLUMNS = 4
+
+
+@dataclass(frozen=True)
+class Panel:
+    """One k of the grid: its best run (``None`` if no run of k succeeded), that run's
+    metric (pF), run counts, and whether k is the chosen one."""
+
+    k: int
+    run_id: str | None
+    metric: float | None
+    runs_ok: int
+    runs_failed: int
+    chosen: bool
+    bound_mm: float | None = None  # the read-back bound, when the selection uses it
+
+    @property
+    def empty(self) -> bool:
+        return self.run_id is None
+
+    @property
+    def title(self) -> str:
+        if self.empty:
+            return f"k = {self.k}, no successful run"
+        score = f"bound {self.bound_mm:.3g} mm" if self.bound_mm is not None else f"min L1 = {self.metric:.4g} pF"
+        return f"k = {self.k}, {score}" + (" (chosen)" if self.chosen else "")
+
+    @property
+    def note(self) -> str:
+        """Text of an empty panel."""
+        if not self.empty:
+            return ""
+        if self.runs_failed:
+            return "its only run failed" if self.runs_failed == 1 else f"all {self.runs_failed} runs failed"
+        return "no runs"
+
+
+def panels(selection) -> list[Panel]:
+    """One ``Panel`` per k of a ``mscap.service.selection.Selection`` (ascending k); exactly the
+    chosen k (if any) is flagged."""
+    return [Panel(k=s.k, run_id=s.best_run, metric=s.best_metric, runs_ok=s.runs_ok,
+                  runs_failed=s.runs_failed, chosen=s.k == selection.chosen_k and s.best_run is not None,
+                  bound_mm=s.best_bound_mm)
+            for s in selection.per_k]
+
+
+def grid_shape(n_k: int) -> tuple[int, int]:
+    """(rows, columns) of the grid for ``n_k`` layout panels plus the metric panel."""
+    n = n_k + 1
+    cols = min(MAX_COLUMNS, n)
+    return math.ceil(n / cols), cols
+
+
+def _sheet_outline(store) -> np.ndarray | None:
+    """The stored scene's sheet outline (mm), or ``None`` if it cannot be read."""
+    from mscap.scene._toml import Table
+    from mscap.errors import MscapError
+    from mscap.scene.loader import _read_sheet
+
+    try:
+        data = tomllib.loads(store.attrs["scene_toml"])
+        return _read_sheet(Table(str(store.attrs.get("scene_path", "?")), "sheet", data.get("sheet", {})))
+    except (MscapError, tomllib.TOMLDecodeError, KeyError) as exc:
+        log.warning("%s: no sheet outline drawn (%s)", store.filename, exc)
+        return None
+
+
+def draw_layout(ax, sheet: np.ndarray | None, outlines, colours, fontsize: float = 8) -> None:
+    """Sheet outline in grey, plates filled in ``colours(j)`` and numbered (also
+    ``mscap optimize``'s layout figure)."""
+    if sheet is not None:
+        ax.plot(*np.vstack([sheet, sheet[:1]]).T, color="0.3", lw=1)
+    for j, o in enumerate(outlines):
+        closed = np.vstack([o, o[:1]])
+        ax.fill(*closed.T, color=colours(j % 10), alpha=0.35)
+        ax.plot(*closed.T, color=colours(j % 10), lw=1)
+        ax.text(*o.mean(axis=0), str(j), ha="center", va="center", fontsize=fontsize)
+    ax.set_aspect("equal")
+
+
+def _frame(ax, colour, width) -> None:
+    for spine in ax.spines.values():
+        spine.set_edgecolor(colour)
+        spine.set_linewidth(width)
+
+
+def _metric_panel(ax, selection, items: list[Panel]) -> None:
+    ok = [p for p in items if not p.empty]
+    bound = selection.by_bound  # lower is better: the band reaches down to b/(1 + tol)
+    value = (lambda p: p.bound_mm) if bound else (lambda p: p.metric)
+    if ok:
+        ax.plot([p.k for p in ok], [value(p) for p in ok], "o-", color="0.2", ms=4, lw=1)
+    chosen = next((p for p in items if p.chosen), None)
+    if chosen is not None:
+        m, tol = value(chosen), selection.plateau_tol
+        low, high, label = ((m / (1 + tol), m, f"b(k={chosen.k})/(1 + {tol:g}) … b") if bound
+                            else (m, (1 + tol) * m, f"m(k={chosen.k}) … (1 + {tol:g})·m"))
+        ax.axhspan(low, high, color=CHOSEN_COLOUR, alpha=0.15, lw=0, label=label)
+        ax.axhline(m, color=CHOSEN_COLOUR, lw=0.8, ls="--")
+        ax.plot([chosen.k], [m], "o", color=CHOSEN_COLOUR, ms=8, mfc="none", mew=2)
+        ax.legend(fontsize=7, loc="best")
+    for p in items:
+        if p.empty:
+            ax.text(p.k, 0.04, "×\nfailed" if p.runs_failed else "×\nno runs", transform=ax.get_xaxis_transform(),
+                    ha="center", va="bottom", color="0.4", fontsize=7)
+    ax.set_xticks([p.k for p in items])
+    if items:
+        ax.set_xlim(items[0].k - 0.5, items[-1].k + 0.5)
+    ax.set_xlabel("k")
+    ax.set_ylabel("best read-back bound (mm)" if bound else "best min L1 (pF)")
+    ax.set_title(("best bound per k" if bound else "best metric per k")
+                 + ("" if chosen is not None else " (no k chosen)"), fontsize=9)
+    ax.grid(alpha=0.3)
+
+
+def plot_results(results, output, dpi: int = 120) -> list[Panel]:
+    """Draw the figure of the results file ``results`` to ``output``; returns the panels.
+
+    Raises
+    ------
+    StoreError
+        The file is not an mscap results file, or holds no finished run.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mscap.service.store import StoreError, finished_ids, read_run, read_store, store_selection
+
+    with read_store(results) as store:
+        if not finished_ids(store):
+            raise StoreError(f"{results}: no finished runs stored yet; nothing to plot")
+        selection = store_selection(store)
+        items = panels(selection)
+        sheet = _sheet_outline(store)
+        outlines = {p.k: read_run(store, p.run_id).final_outlines for p in items if not p.empty}
+        scene_name = str(store.attrs.get("scene_name", "?"))
+
+    rows, cols = grid_shape(len(items))
+    fig, axes = plt.subplots(rows, cols, figsize=(cols * PANEL_SIZE_IN[0], rows * PANEL_SIZE_IN[1]),
+                             squeeze=False)
+    flat = axes.ravel()
+    colours = plt.get_cmap("tab10")
+    limits = None
+    if sheet is not None:
+        lo, hi = sheet.min(axis=0), sheet.max(axis=0)
+        pad = 0.04 * float((hi - lo).max())
+        limits = (lo[0] - pad, hi[0] + pad), (lo[1] - pad, hi[1] + pad)
+    for ax, p in zip(flat, items):
+        if p.empty:
+            if sheet is not None:
+                ax.plot(*np.vstack([sheet, sheet[:1]]).T, color="0.8", lw=1, ls=":")
+                ax.set_aspect("equal")
+            ax.text(0.5, 0.5, p.note, transform=ax.transAxes, ha="center", va="center", color="0.4")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            _frame(ax, "0.7", 0.8)
+        else:
+            draw_layout(ax, sheet, outlines[p.k], colours)
+            ax.tick_params(labelsize=7)
+            if p.chosen:
+                _frame(ax, CHOSEN_COLOUR, 4)
+        if limits is not None:
+            ax.set_xlim(*limits[0])
+            ax.set_ylim(*limits[1])
+        ax.set_title(p.title, fontsize=9, color=CHOSEN_COLOUR if p.chosen else "black",
+                     fontweight="bold" if p.chosen else "normal")
+    _metric_panel(flat[len(items)], selection, items)
+    for ax in flat[len(items) + 1:]:
+        ax.axis("off")
+    if selection.chosen_k is None:
+        headline = "no successful run: no k chosen"
+    else:
+        headline = (f"chosen k = {selection.chosen_k} (plateau_tol {selection.plateau_tol:g}"
+                    + ("" if selection.plateau_reached else ", plateau not confirmed") + ")")
+    fig.suptitle(f"{scene_name}: best layout per k; {headline}", fontsize=10)
+    fig.tight_layout()
+    Path(output).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(output, dpi=dpi)
+    plt.close(fig)
+    return items

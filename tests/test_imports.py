@@ -1,0 +1,108 @@
+"""mscap's import graph has no cycle: no module imports, at import time, a module that
+imports it back (read from the source with ast; nothing is imported)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "mscap"
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted name → file of every module of the package (a package is its ``__init__``)."""
+    modules = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts.pop()
+        modules[".".join(parts)] = path
+    return modules
+
+
+def _import_time_imports(tree: ast.Module) -> list[ast.Import | ast.ImportFrom]:
+    """Imports that run when the module is imported: at top level, in class bodies and in
+    if/try/with blocks; not inside functions, nor under ``if TYPE_CHECKING:``."""
+    found = []
+
+    def walk(nodes):
+        for node in nodes:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                continue
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+                walk(node.orelse)
+                continue
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                found.append(node)
+            for name in ("body", "orelse", "finalbody", "handlers"):
+                block = getattr(node, name, None)
+                if isinstance(block, list):
+                    walk(block)
+
+    walk(tree.body)
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module → the mscap modules it imports at import time. ``from a.b import c`` names
+    the module ``a.b.c`` when there is one, else ``a.b``."""
+    modules = _modules()
+    graph = {}
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        targets = set()
+        for node in _import_time_imports(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                targets.update(alias.name for alias in node.names if alias.name in modules)
+                continue
+            base = node.module or ""
+            if node.level:  # relative: up level − 1 packages from this one
+                parents = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = ".".join(parents + ([base] if base else []))
+            for alias in node.names:
+                target = f"{base}.{alias.name}"
+                if target in modules:
+                    targets.add(target)
+                elif base in modules:
+                    targets.add(base)
+        graph[name] = targets - {name}
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle ``[a, b, ..., a]`` of the graph, or ``None`` (iterative depth-first search)."""
+    state = dict.fromkeys(graph, 0)  # 0 new, 1 on the current path, 2 done
+    for root in sorted(graph):
+        if state[root]:
+            continue
+        path, stack = [root], [iter(sorted(graph[root]))]
+        state[root] = 1
+        while stack:
+            child = next(stack[-1], None)
+            if child is None:
+                state[path.pop()] = 2
+                stack.pop()
+            elif state[child] == 1:
+                return path[path.index(child):] + [child]
+            elif state[child] == 0:
+                state[child] = 1
+                path.append(child)
+                stack.append(iter(sorted(graph[child])))
+    return None
+
+
+def test_the_graph_is_read():
+    graph = import_graph()
+    assert "mscap.bodies.registry" in graph and "mscap.mesh.transfer" in graph
+    assert "mscap.bodies.basic" in graph["mscap.bodies.registry"]
+    assert "mscap.errors" in graph["mscap"]
+
+
+def test_find_cycle_finds_one():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
+
+
+def test_no_import_cycle_in_mscap():
+    cycle = find_cycle(import_graph())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
