@@ -47,7 +47,7 @@ system-packages:
 $(VENV)/.installed: pyproject.toml
 	@test -x $(PY) || /usr/bin/python3 -m venv --system-site-packages $(VENV)
 	$(PY) -m pip install -q --disable-pip-version-check -e '.[test]'
-	@$(PY) -c "from mscap.petsc import petsc; import mpi4py, gmsh, h5py, meshio; \
+	@$(PY) -c "from mscap.fem.petsc import petsc; import mpi4py, gmsh, h5py, meshio; \
 	    print('environment ok: PETSc', '.'.join(map(str, petsc().Sys.getVersion())))"
 	@touch $@
 
