@@ -1,4 +1,6 @@
-"""Error types raised by mscap for user-facing problems.
+"""Every error type mscap raises, one per stage, all :class:`MscapError` (the command
+line prints them as one line and exits 2) except :class:`ParameterError`, the body
+generators' signal that the scene's glue reader turns into a :class:`SceneError`.
 
 Library code raises these (never ``sys.exit`` or ``assert``) with a message that names
 the file, the field and the offending value, so that the command line can print one clean
@@ -7,7 +9,9 @@ line instead of a traceback.
 
 from __future__ import annotations
 
-__all__ = ["MscapError", "SceneError", "GeometryError", "MeshError"]
+__all__ = ["MscapError", "SceneError", "GeometryError", "MeshError", "LinearSolveError", "ElasticError",
+           "AdjointError", "ElectrostaticError", "ReadoutError", "DesignError", "StoreError", "CalibrationError",
+           "ParameterError"]
 
 
 class MscapError(Exception):
@@ -49,3 +53,45 @@ class GeometryError(MscapError):
 
 class MeshError(MscapError):
     """Meshing failed or produced an invalid mesh."""
+
+
+class LinearSolveError(MscapError):
+    """A PETSc linear solve failed (factorisation breakdown, divergence)."""
+
+
+class ElasticError(MscapError):
+    """The elastic problem is ill-posed or its solution failed (names pose, load step and
+    residual)."""
+
+
+class AdjointError(MscapError):
+    """A gradient was asked of a simulation that cannot give it."""
+
+
+class ElectrostaticError(MscapError):
+    """The electrostatic problem is ill-posed (missing plates, touching conductors,
+    inverted tets) or its solve failed."""
+
+
+class ReadoutError(MscapError):
+    """An array, a pattern set or readings that cannot give the capacitances."""
+
+
+class DesignError(MscapError):
+    """A design evaluation produced a non-finite value or cannot be carried out."""
+
+
+class StoreError(MscapError):
+    """A results file cannot be used: wrong scene, not an mscap file, unknown run."""
+
+
+class CalibrationError(MscapError):
+    """A calibration cannot run: no ``[calibration]``, a cache of another scene, ..."""
+
+
+class ParameterError(ValueError):
+    """A generator parameter is out of range; ``parameter`` names the scene key."""
+
+    def __init__(self, parameter: str, message: str):
+        self.parameter = parameter
+        super().__init__(message)

@@ -10,17 +10,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from mscap.errors import ParameterError
 
 __all__ = ["ParameterError", "center_of", "check_wrap", "check_range", "roll", "rotation_minus_identity",
            "smoothstep"]
-
-
-class ParameterError(ValueError):
-    """A generator parameter is out of range; ``parameter`` names the scene key."""
-
-    def __init__(self, parameter: str, message: str):
-        self.parameter = parameter
-        super().__init__(message)
 
 
 def center_of(uv: np.ndarray, center_mm: tuple[float, float] | None) -> np.ndarray:

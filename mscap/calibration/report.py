@@ -8,6 +8,10 @@ import json
 from pathlib import Path
 
 import numpy as np
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["ERRORS_COLUMNS", "default_paths", "summary", "write_outputs", "text_report"]
 
@@ -29,7 +33,7 @@ def default_paths(spec: str) -> tuple[Path, Path]:
     return Path(f"{stem}_calibration.h5"), Path(f"{stem}_calibration")
 
 
-def summary(scene, scores, noise) -> dict:
+def summary(scene: Scene, scores, noise) -> dict:
     """The ``summary.json`` document: settings, then per design its scores averaged over
     the sequence poses."""
     cal = scene.calibration
@@ -54,7 +58,7 @@ def summary(scene, scores, noise) -> dict:
     return document
 
 
-def write_outputs(outdir: Path, scene, scores, noise) -> None:
+def write_outputs(outdir: Path, scene: Scene, scores, noise) -> None:
     """``errors.csv`` (one row per design and sequence pose), ``summary.json`` and the
     ``errors.png`` figure (the paper's Fig. 15) in ``outdir``."""
     from mscap.viz.calibration import error_figure
@@ -75,7 +79,7 @@ def write_outputs(outdir: Path, scene, scores, noise) -> None:
     error_figure(outdir / "errors.png", scene, scores)
 
 
-def text_report(scene, scores, noise) -> str:
+def text_report(scene: Scene, scores, noise) -> str:
     """The printed table: per design the mean and max error, mean ± std over the runs,
     averaged over the sequence poses; then the no-signal baseline."""
     cal = scene.calibration

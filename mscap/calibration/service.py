@@ -38,10 +38,14 @@ import h5py
 import numpy as np
 
 from mscap.scene.calibration import CalibrationSettings, family_poses
-from mscap.errors import MscapError
+from mscap.errors import CalibrationError, MscapError
 from mscap.service import farm
 from mscap.geometry.layout import Layout
 from mscap.calibration.reconstruction import PoseErrors, fit, point_errors, score
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["CalibrationError", "Candidate", "FAMILIES", "families", "physics_sha256", "family", "targets",
            "simulate_family", "read_cache", "evaluate", "DesignScore"]
@@ -51,10 +55,6 @@ log = logging.getLogger(__name__)
 FORMAT = "mscap-calibration"
 SCHEMA_VERSION = 1
 FAMILIES = ("training", "sequence")
-
-
-class CalibrationError(MscapError):
-    """A calibration cannot run: no ``[calibration]``, a cache of another scene, ..."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,7 +77,7 @@ class Candidate:
         return f"{self.label.replace(':', '__').replace('/', '_')}_{h.hexdigest()[:12]}"
 
 
-def settings(scene) -> CalibrationSettings:
+def settings(scene: Scene) -> CalibrationSettings:
     """The scene's calibration settings, or a :class:`CalibrationError` naming the file."""
     if scene.calibration is None:
         raise CalibrationError(f"{scene.path}: no [calibration] section (the pose family to "
@@ -85,7 +85,7 @@ def settings(scene) -> CalibrationSettings:
     return scene.calibration
 
 
-def physics_sha256(scene) -> str:
+def physics_sha256(scene: Scene) -> str:
     """Hash of everything in the scene that can change a simulated capacitance: the
     scene's data without the tables that cannot (``[calibration]``, ``[optimizer]``,
     ``[multistart]``, name and description)."""
@@ -96,7 +96,7 @@ def physics_sha256(scene) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def families(scene) -> tuple[str, ...]:
+def families(scene: Scene) -> tuple[str, ...]:
     """The pose sets to simulate: training, sequence and ``reference_<pose>`` if the
     calibration reads a reference pose (named by the pose: another reference is another
     set, the cached ones stay valid)."""
@@ -104,7 +104,7 @@ def families(scene) -> tuple[str, ...]:
     return FAMILIES + ((f"reference_{cal.reference}",) if cal.reference else ())
 
 
-def family(scene, which: str) -> tuple:
+def family(scene: Scene, which: str) -> tuple:
     """The training, sequence or reference poses of the scene's calibration."""
     cal = settings(scene)
     if which.startswith("reference_"):
@@ -113,7 +113,7 @@ def family(scene, which: str) -> tuple:
     return family_poses(template, cal.parameters, getattr(cal, which), which)
 
 
-def targets(scene, which: str) -> tuple[np.ndarray, int]:
+def targets(scene: Scene, which: str) -> tuple[np.ndarray, int]:
     """``(n, n_out)`` reconstruction targets of a family and the point dimension: the
     posed object's vertices (object frame, mm; dim 3) or the parameters (dim 1)."""
     cal = settings(scene)
@@ -132,7 +132,7 @@ class _Task:
     stop: int
 
 
-def _simulate_chunk(scene, design: Candidate, poses: tuple, mesh=None) -> tuple[np.ndarray, np.ndarray]:
+def _simulate_chunk(scene: Scene, design: Candidate, poses: tuple, mesh=None) -> tuple[np.ndarray, np.ndarray]:
     """Capacitances ``(n, k)`` and wall times of ``poses`` on one mesh of ``design``.
     A chunk that fails is redone pose by pose so only the failing poses are lost (NaN)."""
     from mscap.mesh.layered import mesh_scene
@@ -151,7 +151,7 @@ def _simulate_chunk(scene, design: Candidate, poses: tuple, mesh=None) -> tuple[
     return np.vstack([c for c, _ in parts]), np.concatenate([w for _, w in parts])
 
 
-def _work(scene, designs, poses_of):
+def _work(scene: Scene, designs, poses_of):
     def work(task: _Task):
         poses = poses_of[task.which][task.start:task.stop]
         return task, *_simulate_chunk(scene, designs[task.design], poses)
@@ -159,7 +159,7 @@ def _work(scene, designs, poses_of):
 
 
 # ---------------------------------------------------------------- cache (master)
-def _open_cache(path, scene) -> h5py.File:
+def _open_cache(path, scene: Scene) -> h5py.File:
     physics, fam = physics_sha256(scene), settings(scene).family_sha256()
     path = Path(path)
     if path.exists():
@@ -219,7 +219,7 @@ def _chunks(todo: np.ndarray, size: int) -> list[tuple[int, int]]:
     return out
 
 
-def simulate_family(scene, designs: list[Candidate], cache_path, comm=None,
+def simulate_family(scene: Scene, designs: list[Candidate], cache_path, comm=None,
                     progress: Callable[[str], None] | None = None) -> None:
     """Simulate every design's training and sequence poses that the cache lacks.
 
@@ -311,7 +311,7 @@ class DesignScore:
     simulation_s: float
 
 
-def evaluate(scene, designs: list[Candidate], cache_path, noise=None) -> list[DesignScore]:
+def evaluate(scene: Scene, designs: list[Candidate], cache_path, noise=None) -> list[DesignScore]:
     """Fit and score every design from the cache (``noise`` overrides the scene's)."""
     cal = settings(scene)
     noise = noise or cal.noise

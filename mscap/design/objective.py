@@ -49,6 +49,10 @@ from mscap.scene.settings import DISTANCES
 from mscap.fem.elastic.contact import barrier, barrier_derivatives
 from mscap.errors import GeometryError, MscapError
 from mscap.geometry.polygons import segment_projection
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["soft_min", "Dissimilarity", "PlateAreaBarrier", "DISTANCES", "capacitance_term", "SeparationBarrier",
            "LaplacianSmoothing", "Weighted", "Sum", "ObjectiveParts", "LayoutObjective", "layout_objective"]
@@ -374,7 +378,7 @@ class LayoutObjective:
         return self.barrier.max_step(outlines, directions, keep)
 
 
-def capacitance_term(scene) -> _Term:
+def capacitance_term(scene: Scene) -> _Term:
     """The term d of the scene, maximised (J = −d + ...):
 
     - ``"pF"``: :class:`Dissimilarity` (``tau_pF2``);
@@ -438,7 +442,7 @@ class PlateAreaBarrier(_Term):
         return float(barrier(np.array([slack]), self.dhat)[0])
 
 
-def layout_objective(scene, dhat_mm: float | None = None) -> LayoutObjective:
+def layout_objective(scene: Scene, dhat_mm: float | None = None) -> LayoutObjective:
     """J = −d + w_b (B + B_area) + w_s S from a scene's ``[optimizer]`` (``distance``,
     ``tau_pF2`` / ``tau_noise`` / ``tau_mm``, ``barrier_weight``, ``smoothing_weight``,
     ``max_plate_area_mm2``) and ``[capacitors] min_gap_mm``."""

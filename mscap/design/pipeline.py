@@ -35,7 +35,7 @@ import numpy as np
 
 from mscap.fem.adjoint import moved, pose_rest_gradient
 from mscap.design.deformer import Deformer, build_deformer
-from mscap.errors import MscapError
+from mscap.errors import DesignError
 from mscap.fem.elastic.newton import Operator
 from mscap.design.objective import layout_objective
 from mscap.scene import Scene
@@ -49,10 +49,6 @@ from mscap.mesh.transfer import p1_matrix
 __all__ = ["DesignError", "Design", "Evaluation", "build_design"]
 
 log = logging.getLogger(__name__)
-
-
-class DesignError(MscapError):
-    """A design evaluation produced a non-finite value or cannot be carried out."""
 
 
 @dataclass(frozen=True)

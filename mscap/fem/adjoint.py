@@ -50,22 +50,22 @@ from mscap.fem import elements as fem
 from mscap.fem.elastic import neohookean
 from mscap.fem.elastic.contact import Ball, barrier_derivatives
 from mscap.fem.elastic.problem import ElasticProblem, node_values, rest_geometry
-from mscap.errors import MscapError
+from mscap.errors import AdjointError
 from mscap.mesh.layered import LayeredMesh
 from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import ElasticState, Loading, NewtonSettings
 from mscap.fem.simulate import equilibrium
 from mscap.scene.poses import PokePose, StretchPose
 from mscap.fem.profile import timed
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["AdjointError", "RestGradient", "pose_rest_gradient", "elastic_rest_vjp", "ball_rest_vjp",
            "dirichlet_vjp", "problem_at", "moved", "solve_moved_pose"]
 
 log = logging.getLogger(__name__)
-
-
-class AdjointError(MscapError):
-    """A gradient was asked of a simulation that cannot give it."""
 
 
 class RestGradient(NamedTuple):
@@ -78,7 +78,7 @@ class RestGradient(NamedTuple):
     elastic: np.ndarray
 
 
-def pose_rest_gradient(sim, pose_index: int, weights, scene) -> RestGradient:
+def pose_rest_gradient(sim, pose_index: int, weights, scene: Scene) -> RestGradient:
     """Gradient of ``Σ_j w_j C_j`` (pF) of one pose with respect to the rest positions.
 
     Parameters
@@ -287,7 +287,7 @@ def moved(sim, fine_points: np.ndarray, elastic_points: np.ndarray | None = None
     return replace(sim, mesh=mesh, electro=electro, elastic=elastic, poses=())
 
 
-def solve_moved_pose(sim, scene, pose_index: int, start: np.ndarray | None = None,
+def solve_moved_pose(sim, scene: Scene, pose_index: int, start: np.ndarray | None = None,
                      settings: NewtonSettings | None = None
                      ) -> tuple[electrostatic.Capacitances, ElasticState | None]:
     """Capacitances (and equilibrium) of one pose of ``sim`` (e.g. from :func:`moved`).

@@ -30,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from mscap.fem import elements as fem
-from mscap.errors import MscapError
+from mscap.errors import ElectrostaticError
 from mscap.mesh.layered import (BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE_LAYER, LayeredMesh, tet_values,
                                  tet_volumes)
 from mscap.fem.petsc import LinearSolver, petsc
@@ -45,11 +45,6 @@ log = logging.getLogger(__name__)
 RESIDUAL_LIMIT = 1e-3
 #: Above this, warn: capacitances err by ~residual², shape derivatives by ~residual.
 RESIDUAL_WARNING = 1e-8
-
-
-class ElectrostaticError(MscapError):
-    """The electrostatic problem is ill-posed (missing plates, touching conductors,
-    inverted tets) or its solve failed."""
 
 
 @dataclass(frozen=True)

@@ -15,17 +15,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mscap.errors import MscapError
+from mscap.errors import LinearSolveError
 from mscap.fem.profile import section
 
 __all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "LinearSolver",
            "LinearSolveError"]
 
 _DEBIAN_PETSC = "/usr/lib/petscdir/petsc*/*-real"
-
-
-class LinearSolveError(MscapError):
-    """A PETSc linear solve failed (factorisation breakdown, divergence)."""
 
 
 def find_petsc_dir() -> str | None:

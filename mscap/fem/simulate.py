@@ -81,7 +81,7 @@ def electro_vertices(mesh: LayeredMesh, problem: ElasticProblem, transfer, nodes
     return mesh.points + transfer @ (nodes - problem.rest)
 
 
-def simulate(scene, order: int | None = None, elastic_order: int | None = None,
+def simulate(scene: Scene, order: int | None = None, elastic_order: int | None = None,
              mesh: LayeredMesh | None = None, keep_factorisation: bool = False,
              progress: Callable[[str], None] | None = None) -> Simulation:
     """Simulate every pose of ``scene``.
@@ -174,7 +174,7 @@ def solve_poses(sim: Simulation, scene: Scene, solver: LinearSolver, operator: O
     return tuple(results)
 
 
-def elastic_setup(scene, mesh: LayeredMesh, order: int | None = None):
+def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None):
     """The elastic problem the scene's poses need (``None`` if every pose is free) on the
     scene's elastic mesh, and the transfer to ``mesh``'s vertices (``None`` when shared)."""
     if all(p.kind == "free" for p in scene.poses):
@@ -190,7 +190,7 @@ def elastic_setup(scene, mesh: LayeredMesh, order: int | None = None):
 _P1_WARNED: set[tuple[str, str]] = set()
 
 
-def _warn_p1_clamped_stretch(scene, order: int) -> None:
+def _warn_p1_clamped_stretch(scene: Scene, order: int) -> None:
     """P1 tets stiffen clamped large stretches (locking): say so instead of staying
     silent, once per scene and pose in a process (an optimisation rebuilds it often)."""
     if order != 1:

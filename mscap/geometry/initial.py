@@ -21,6 +21,10 @@ import numpy as np
 from mscap.geometry import polygons as geometry
 from mscap.errors import GeometryError
 from mscap.geometry.layout import Layout, check_layout
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["LAYOUT_INITS", "initial_layout", "random_layout", "lloyd_layout", "lloyd_points", "plate_size_mm"]
 
@@ -29,12 +33,12 @@ __all__ = ["LAYOUT_INITS", "initial_layout", "random_layout", "lloyd_layout", "l
 LAYOUT_INITS = ("random", "lloyd", "scene")
 
 
-def plate_size_mm(scene) -> float:
+def plate_size_mm(scene: Scene) -> float:
     """Side of a square with the scene's mean plate area."""
     return float(np.sqrt(np.abs(scene.layout.areas_mm2()).mean()))
 
 
-def _valid(layout: Layout, scene, clearance: float) -> bool:
+def _valid(layout: Layout, scene: Scene, clearance: float) -> bool:
     try:
         check_layout(layout, scene.sheet_outline_mm, clearance * scene.min_gap_mm)
     except GeometryError:
@@ -54,7 +58,7 @@ def _fits(square: np.ndarray, placed: list, sheet: np.ndarray, gap: float) -> bo
     return True
 
 
-def random_layout(scene, k: int, seed: int, clearance: float = 2.0, attempts: int = 20,
+def random_layout(scene: Scene, k: int, seed: int, clearance: float = 2.0, attempts: int = 20,
                   tries_per_shape: int = 50) -> Layout:
     """k non-overlapping squares by seeded rejection sampling."""
     rng = np.random.default_rng(seed)
@@ -102,7 +106,7 @@ def lloyd_points(sheet: np.ndarray, k: int, seed: int, iterations: int = 100, sa
     return sites
 
 
-def lloyd_layout(scene, k: int, seed: int, clearance: float = 2.0) -> Layout:
+def lloyd_layout(scene: Scene, k: int, seed: int, clearance: float = 2.0) -> Layout:
     """Squares at the centroids of a seeded Lloyd relaxation, shrunk until valid."""
     sites = lloyd_points(scene.sheet_outline_mm, k, seed)
     size = plate_size_mm(scene)
@@ -114,7 +118,7 @@ def lloyd_layout(scene, k: int, seed: int, clearance: float = 2.0) -> Layout:
     raise GeometryError(f"no valid squares at the Lloyd centroids of {scene.path} for k = {k}")
 
 
-def initial_layout(scene, k: int | None, seed: int, init: str) -> Layout:
+def initial_layout(scene: Scene, k: int | None, seed: int, init: str) -> Layout:
     """The initial layout of one start."""
     if init == "scene":
         if k is not None and k != scene.layout.k:

@@ -19,6 +19,10 @@ import numpy as np
 
 from mscap.mesh.triangulate import TriMesh
 from mscap.fem.profile import timed
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["LayeredMesh", "extrude", "mesh_scene", "mesh_elastic", "level_heights", "layer_fractions",
            "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
@@ -182,7 +186,7 @@ def extrude(mesh2d: TriMesh, thicknesses_mm, elements_per_layer: int = 1,
 
 
 @timed("meshing")
-def mesh_scene(scene) -> LayeredMesh:
+def mesh_scene(scene: Scene) -> LayeredMesh:
     """Triangulate a :class:`~mscap.scene.settings.Scene`'s sheet and layout, then extrude it."""
     from mscap.mesh.triangulate import triangulate
 
@@ -191,7 +195,7 @@ def mesh_scene(scene) -> LayeredMesh:
 
 
 @timed("meshing")
-def mesh_elastic(scene, mesh: LayeredMesh) -> LayeredMesh:
+def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
     """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
     "shared"``, else a triangulation with the same outlines embedded, so every tet lies
     inside or outside a plate, at ``edge_length_mm`` (outlines: ``edge_length_outline_mm``,

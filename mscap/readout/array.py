@@ -26,7 +26,7 @@ from functools import cached_property
 import numpy as np
 
 from mscap.scene.calibration import NoiseModel
-from mscap.errors import MscapError
+from mscap.errors import ReadoutError
 
 __all__ = ["ReadoutError", "C_ON_PF", "C_OFF_PF", "MAX_ALL_LEADS", "MAX_DEFAULT_ALL_LEADS",
            "MAX_ENUMERATED_CANDIDATE_LEADS", "MAX_RANDOM_CANDIDATES", "CapacitorArray", "grid_array",
@@ -50,10 +50,6 @@ MAX_RANDOM_CANDIDATES = 1024
 # A null-space projector entry above this ties unknowns together (a singular value below
 # s_max · max(M.shape) · eps counts as zero, numpy's rule, see MeasurementMatrix.rank).
 _NULL_TOL = 1e-9
-
-
-class ReadoutError(MscapError):
-    """An array, a pattern set or readings that cannot give the capacitances."""
 
 
 # ---------------------------------------------------------------- the array

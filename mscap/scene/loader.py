@@ -26,7 +26,7 @@ from mscap.scene.settings import (DEFAULT_FAMILY_COUNT, DESIGN_POSES, DISTANCES,
                                   Layer, Material, MeshSettings, MultistartSettings, OptimizerSettings, Scene)
 
 __all__ = ["load_scene", "check_optimizer", "check_multistart", "check_designable", "family_grid_counts",
-           "read_multistart"]
+           "read_multistart", "select_poses"]
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -368,3 +368,13 @@ def check_designable(scene: Scene) -> None:
     if len(scene.poses) < 2:
         raise SceneError(scene.path, "poses", f"the design objective compares poses: need at least 2, "
                          f"got {len(scene.poses)}")
+
+
+def select_poses(scene: Scene, names: list[str]) -> Scene:
+    """``scene`` with only the poses named (in the scene's order); an unknown name is a
+    :class:`SceneError` listing the scene's poses."""
+    known = [p.name for p in scene.poses]
+    unknown = [name for name in names if name not in known]
+    if unknown:
+        raise SceneError(scene.path, "poses", f"no pose named {unknown[0]!r}; the scene has {', '.join(known)}")
+    return replace(scene, poses=tuple(p for p in scene.poses if p.name in names))

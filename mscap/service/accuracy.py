@@ -22,6 +22,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from mscap.design.history import min_pairwise_l1
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["ErrorEstimate", "finer", "estimate_error"]
 
@@ -37,7 +41,7 @@ class ErrorEstimate:
     wall_s: float
 
 
-def finer(scene):
+def finer(scene: Scene):
     """``scene`` one level finer: every target edge length of ``[mesh]`` and
     ``[elastic]`` halved; grading distances, slabs through the thickness and element
     orders kept (the field through a thin layer is resolved by the slabs already,
@@ -59,7 +63,7 @@ def relative_difference(coarse_pF: np.ndarray, fine_pF: np.ndarray) -> float:
     return float(np.max(np.abs(coarse - fine) / np.abs(fine))) if fine.size else float("nan")
 
 
-def estimate_error(scene, layout, capacitance_pF: np.ndarray) -> ErrorEstimate:
+def estimate_error(scene: Scene, layout, capacitance_pF: np.ndarray) -> ErrorEstimate:
     """Simulate ``layout`` on :func:`finer` ``(scene)`` and compare with
     ``capacitance_pF`` (the same layout's capacitances at the scene's own settings)."""
     from mscap.fem.simulate import simulate

@@ -24,6 +24,10 @@ import numpy as np
 
 from mscap.design.history import HISTORY_FIELDS
 from mscap.service.store import StoreError, read_run, read_store, store_selection
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["StoredDesign", "split_design_spec", "check_scene", "read_design", "load_design", "OPTIMIZE_FILES",
            "OptimizeOutput", "write_optimize_output", "read_optimize_output", "design_layouts"]
@@ -59,7 +63,7 @@ def split_design_spec(spec: str) -> tuple[str, str | None]:
     return path, rid or None
 
 
-def check_scene(store: h5py.File, scene) -> None:
+def check_scene(store: h5py.File, scene: Scene) -> None:
     """A later stage (calibration, read-out) given ``scene`` for this file: the scene's
     name must match the stored one; a changed scene text (e.g. a ``[calibration]`` added
     after the runs) is only logged.
@@ -104,7 +108,7 @@ def read_design(store: h5py.File, rid: str | None = None, which: str = "final") 
                         capacitance_pF=np.array(capacitance, dtype=float))
 
 
-def load_design(scene, spec: str, which: str = "final") -> StoredDesign:
+def load_design(scene: Scene, spec: str, which: str = "final") -> StoredDesign:
     """:func:`read_design` of the results file named by ``spec`` (``FILE.h5[:RUN]``),
     after :func:`check_scene`."""
     path, rid = split_design_spec(spec)
@@ -124,7 +128,7 @@ class OptimizeOutput:
     summary: dict
 
 
-def write_optimize_output(directory, scene, initial, result, seed: int, init: str) -> dict:
+def write_optimize_output(directory, scene: Scene, initial, result, seed: int, init: str) -> dict:
     """Write :data:`OPTIMIZE_FILES` of one start (initial layout ``initial``, an
     ``OptimizeResult``) of the design scene ``scene`` to ``directory``; returns the summary.
     With a design family the summary holds the read-back bound before and after."""
@@ -183,7 +187,7 @@ def read_optimize_output(directory) -> OptimizeOutput:
 
 
 # ---------------------------------------------------------------- a design and its baselines
-def _optimize_layouts(scene, directory: Path, baselines: list[str] | None) -> list[tuple[str, tuple]]:
+def _optimize_layouts(scene: Scene, directory: Path, baselines: list[str] | None) -> list[tuple[str, tuple]]:
     """The final layout of an ``mscap optimize`` output directory and its baselines:
     ``initial`` (rebuilt from the run's k, seed and init: initial layouts are functions
     of those alone) and ``scene``."""
@@ -207,7 +211,7 @@ def _optimize_layouts(scene, directory: Path, baselines: list[str] | None) -> li
     return layouts
 
 
-def design_layouts(scene, spec: str, baselines: list[str] | None) -> list[tuple[str, tuple[np.ndarray, ...]]]:
+def design_layouts(scene: Scene, spec: str, baselines: list[str] | None) -> list[tuple[str, tuple[np.ndarray, ...]]]:
     """``(label, outlines)`` of the design named by ``spec`` (a results file, optionally
     ``:RUN``, or an ``mscap optimize`` output directory), then of each baseline:
     ``"initial"`` (the design's initial layout; the default), ``"scene"`` (the scene's

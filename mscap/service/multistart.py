@@ -30,12 +30,16 @@ from mscap.service import farm
 from mscap.service.selection import StartConfig, configurations, select
 from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
     write_selection
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["run_start", "run_multistart"]
 
 log = logging.getLogger(__name__)
 
-def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None):
+def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None):
     """Run one start and return its :class:`~mscap.service.store.RunRecord` (failed, with the
     error text, if anything in it raises)."""
     from mscap.design.pipeline import build_design
@@ -71,7 +75,7 @@ def run_start(scene, config: StartConfig, rank: int = 0, max_iterations: int | N
     return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s)
 
 
-def run_multistart(scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
+def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
                    select_configs: Callable[[StartConfig], bool] | None = None,
                    max_iterations: int | None = None,
                    progress: Callable[[str], None] | None = None) -> dict | None:
@@ -110,7 +114,7 @@ def run_multistart(scene, path: str, comm=None, force: bool = False, retry_faile
                     progress or (lambda m: None))
 
 
-def _master(scene, path, size, force, retry_failed, select_configs, execute, stop, say) -> dict:
+def _master(scene: Scene, path, size, force, retry_failed, select_configs, execute, stop, say) -> dict:
     store = open_store(path, scene, mpi_size=size, force=force)
     done = failed = 0
     try:

@@ -13,6 +13,10 @@ from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 from mscap.scene.loader import check_multistart
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS",
            "run_id", "configurations", "choose_k", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
@@ -47,7 +51,7 @@ class StartConfig:
         return run_id(self.k, self.seed, self.init)
 
 
-def configurations(scene) -> list[StartConfig]:
+def configurations(scene: Scene) -> list[StartConfig]:
     """Every start of the scene's multi-start, ordered by k then index.
 
     For each k in ``k_min..k_max``, ``starts_per_k`` starts: the first

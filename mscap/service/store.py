@@ -23,11 +23,15 @@ import numpy as np
 from mscap import __version__
 from mscap.service.accuracy import relative_difference
 from mscap.design.history import min_pairwise_l1
-from mscap.errors import MscapError
+from mscap.errors import StoreError
 from mscap.design.history import HISTORY_FIELDS
 from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
 from mscap.service.selection import SELECTION_RULE_BOUND, RunSummary, Selection, select, SELECTION_RULE, run_id
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["StoreError", "RunRecord", "FORMAT", "SCHEMA_VERSION", "ROOT_ATTRS", "RUN_ATTRS",
            "RUN_DATASETS", "HISTORY_COLUMNS", "SELECTION_ITEMS", "TEMP_PREFIX", "open_store", "create_store", "read_store",
@@ -124,10 +128,6 @@ def schema_markdown() -> str:
                       table("Run datasets (`/runs/<id>/...`)", RUN_DATASETS),
                       table("History columns (`/runs/<id>/history/<column>`)", history),
                       table("Selection (`/selection`)", SELECTION_ITEMS)])
-
-
-class StoreError(MscapError):
-    """A results file cannot be used: wrong scene, not an mscap file, unknown run."""
 
 
 # ---------------------------------------------------------------- records
@@ -255,7 +255,7 @@ def _check_format(f: h5py.File, path) -> None:
         raise StoreError(f"{path}: not an mscap results file (no format = {FORMAT!r} attribute)")
 
 
-def open_store(path, scene, mpi_size: int = 1, force: bool = False) -> h5py.File:
+def open_store(path, scene: Scene, mpi_size: int = 1, force: bool = False) -> h5py.File:
     """Create the results file of ``scene``, or reopen it to resume.
 
     A reopened file must hold the same scene (same ``Scene.sha256``); its half-written

@@ -6,11 +6,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["error_figure"]
 
 
-def error_figure(path: Path, scene, scores) -> None:
+def error_figure(path: Path, scene: Scene, scores) -> None:
     """Mean and max error per sequence pose of ``scores`` (``DesignScore``), mean ± std over
     runs, one line per design; out-of-distribution poses shaded."""
     import matplotlib

@@ -6,11 +6,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mscap.scene.settings import Scene
 
 __all__ = ["optimize_figure"]
 
 
-def optimize_figure(path: Path, scene, before, after, c_before: np.ndarray, c_after: np.ndarray, poses) -> None:
+def optimize_figure(path: Path, scene: Scene, before, after, c_before: np.ndarray, c_after: np.ndarray, poses) -> None:
     """Layouts ``before`` and ``after`` (with the poke centres) and per-pose capacitance bars
     (change from the layout's mean over poses, pF) to ``path``."""
     import matplotlib

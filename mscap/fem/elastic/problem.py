@@ -26,7 +26,7 @@ import scipy.sparse as sp
 from mscap.fem import elements as fem
 
 from mscap.fem.elastic import neohookean
-from mscap.errors import MscapError
+from mscap.errors import ElasticError
 from mscap.mesh.layered import LayeredMesh, tet_values
 from mscap.fem.profile import timed
 
@@ -34,11 +34,6 @@ __all__ = ["ElasticError", "ElasticProblem", "Assembly", "build_problem", "rest_
            "assemble", "total_energy", "node_values", "tet_fields"]
 
 log = logging.getLogger(__name__)
-
-
-class ElasticError(MscapError):
-    """The elastic problem is ill-posed or its solution failed (names pose, load step and
-    residual)."""
 
 
 @dataclass(frozen=True)
