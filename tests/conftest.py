@@ -85,6 +85,19 @@ def write_scene(tmp_path):
     return write
 
 
+@pytest.fixture
+def free_poses_scene(small_scene_dict, write_scene):
+    """``free_poses_scene(k_max)``: the small scene with three free poses (rest, a, b) and
+    a multi-start over k = 2..k_max, 3 starts per k (store, selection and plot tests)."""
+    from mscap.scene import load_scene
+
+    def build(k_max: int):
+        small_scene_dict["multistart"] = {"k_min": 2, "k_max": k_max, "starts_per_k": 3, "plateau_tol": 0.05}
+        small_scene_dict["poses"] = [{"name": name, "kind": "free"} for name in ("rest", "a", "b")]
+        return load_scene(write_scene(small_scene_dict))
+    return build
+
+
 def grid_trimesh(nx, ny, width, height, capacitor_of_centroid, jitter=0.0, seed=0):
     """A structured triangulation, interior vertices jittered by ``jitter`` cell sizes."""
     xs, ys = np.meshgrid(np.linspace(0, width, nx + 1), np.linspace(0, height, ny + 1))

@@ -4,10 +4,11 @@ The optimiser minimises
 
     J(C, X) = −d(C) + w_b B(X) + w_s S(X)
 
-with C the ``(n_poses, k)`` pose capacitances (pF) and X the capacitor outlines (mm).
-The capacitance term and the geometry terms stay separate objects: ∂J/∂C goes into the
-adjoint solves, ∂J/∂X straight to the control (Wᵀ). Terms add (``a + b`` → :class:`Sum`)
-and scale (``w * a`` → :class:`Weighted`); :func:`layout_objective` builds J from a scene.
+(+ w_b B_area(X) with ``max_plate_area_mm2``) with C the ``(n_poses, k)`` pose
+capacitances (pF) and X the capacitor outlines (mm). :class:`LayoutObjective` is the one
+place J is composed (:func:`layout_objective` builds it from a scene); its capacitance
+and geometry parts stay separate: ∂J/∂C goes into the adjoint solves, ∂J/∂X straight to
+the control (Wᵀ). Terms (:mod:`mscap.design.terms`) add and scale.
 
 - :class:`Dissimilarity` d = −τ log Σ_{a<b} exp(−‖C_a − C_b‖²/τ), a soft minimum of the
   pairwise squared distances (pF²), evaluated as min D − τ log Σ exp(−(D − min D)/τ): no
@@ -49,6 +50,9 @@ from mscap.scene.settings import DISTANCES
 from mscap.fem.elastic.contact import barrier, barrier_derivatives
 from mscap.errors import GeometryError, MscapError
 from mscap.geometry.polygons import segment_projection
+from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, design_scene
+from mscap.design.terms import Sum, Term, Weighted, soft_min
+from mscap.scene.calibration import NoiseModel
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -58,45 +62,8 @@ __all__ = ["soft_min", "Dissimilarity", "PlateAreaBarrier", "DISTANCES", "capaci
            "LaplacianSmoothing", "Weighted", "Sum", "ObjectiveParts", "LayoutObjective", "layout_objective"]
 
 
-def soft_min(values: np.ndarray, tau: float) -> tuple[float, np.ndarray]:
-    """−τ log Σ exp(−v/τ) (≤ min v) and its gradient (a softmax summing to 1), evaluated
-    about the minimum: no overflow or underflow at any v/τ."""
-    low = values.min()
-    weight = np.exp(-(values - low) / tau)  # in (0, 1], the minimum gives 1
-    total = weight.sum()
-    return float(low - tau * np.log(total)), weight / total
-
-
-def _scaled(g, w: float):
-    return tuple(w * x for x in g) if isinstance(g, tuple) else w * g
-
-
-def _added(g, h):
-    return tuple(x + y for x, y in zip(g, h)) if isinstance(g, tuple) else g + h
-
-
-class _Term:
-    """A term maps its input (C, or a sequence of outlines) to a float and a gradient of
-    the same shape (an array, or a tuple of ``(m_i, 2)`` arrays)."""
-
-    def value_and_gradient(self, x):
-        raise NotImplementedError
-
-    def value(self, x) -> float:
-        return self.value_and_gradient(x)[0]
-
-    def gradient(self, x):
-        return self.value_and_gradient(x)[1]
-
-    def __add__(self, other: _Term) -> Sum:
-        return Sum((self, other))
-
-    def __rmul__(self, weight: float) -> Weighted:
-        return Weighted(self, float(weight))
-
-
 @dataclass(frozen=True)
-class Dissimilarity(_Term):
+class Dissimilarity(Term):
     """Soft minimum (pF²) of pairwise squared distances of pose capacitance vectors."""
 
     tau_pF2: float = 1.0
@@ -123,7 +90,7 @@ class Dissimilarity(_Term):
 
 
 @dataclass(frozen=True, eq=False)
-class SeparationBarrier(_Term):
+class SeparationBarrier(Term):
     """IPC barrier keeping capacitor outlines ``gap_mm`` apart and ``margin_mm`` inside the
     sheet. Outlines are closed ``(m_i, 2)`` arrays (mm); the sheet does not move. Assumes
     a feasible start (:func:`mscap.geometry.layout.check_layout`), which :meth:`max_step` keeps."""
@@ -265,7 +232,7 @@ class SeparationBarrier(_Term):
 
 
 @dataclass(frozen=True)
-class LaplacianSmoothing(_Term):
+class LaplacianSmoothing(Term):
     """S = Σ_i ‖x_i − (x_{i−1} + x_{i+1})/2‖² over closed outlines (mm²)."""
 
     def value_and_gradient(self, outlines):
@@ -277,38 +244,6 @@ class LaplacianSmoothing(_Term):
             # S = ‖L x‖² with L symmetric (circulant), so ∇S = 2 L (L x).
             grads.append(2 * (lap - 0.5 * (np.roll(lap, 1, axis=0) + np.roll(lap, -1, axis=0))))
         return value, tuple(grads)
-
-
-@dataclass(frozen=True)
-class Weighted(_Term):
-    """``weight`` times a term (a zero weight gives 0 even where the term is infinite)."""
-
-    term: _Term
-    weight: float
-
-    def value(self, x) -> float:
-        return 0.0 if self.weight == 0 else self.weight * self.term.value(x)
-
-    def value_and_gradient(self, x):
-        v, g = self.term.value_and_gradient(x)
-        return (0.0 if self.weight == 0 else self.weight * v), _scaled(g, self.weight)
-
-
-@dataclass(frozen=True)
-class Sum(_Term):
-    """The sum of terms of the same input."""
-
-    terms: tuple
-
-    def value(self, x) -> float:
-        return float(sum(t.value(x) for t in self.terms))
-
-    def value_and_gradient(self, x):
-        value, grad = self.terms[0].value_and_gradient(x)
-        for t in self.terms[1:]:
-            v, g = t.value_and_gradient(x)
-            value, grad = value + v, _added(grad, g)
-        return value, grad
 
 
 @dataclass(frozen=True)
@@ -332,7 +267,7 @@ class LayoutObjective:
     (which also bounds the line search's step), ``area`` the plate-area barrier (``None``
     without ``max_plate_area_mm2``), ``smoothing`` S."""
 
-    distance: _Term
+    distance: Term
     barrier: SeparationBarrier
     smoothing: LaplacianSmoothing
     area: PlateAreaBarrier | None
@@ -340,12 +275,12 @@ class LayoutObjective:
     smoothing_weight: float
 
     @property
-    def capacitance(self) -> _Term:
+    def capacitance(self) -> Term:
         """The capacitance part of J: −d."""
         return -1.0 * self.distance
 
     @property
-    def geometry(self) -> _Term:
+    def geometry(self) -> Term:
         """The outline part of J: w_b (B + B_area) + w_s S."""
         geometry = self.barrier_weight * self.barrier + self.smoothing_weight * self.smoothing
         return geometry if self.area is None else geometry + self.barrier_weight * self.area
@@ -378,7 +313,7 @@ class LayoutObjective:
         return self.barrier.max_step(outlines, directions, keep)
 
 
-def capacitance_term(scene: Scene) -> _Term:
+def capacitance_term(scene: Scene) -> Term:
     """The term d of the scene, maximised (J = −d + ...):
 
     - ``"pF"``: :class:`Dissimilarity` (``tau_pF2``);
@@ -391,9 +326,6 @@ def capacitance_term(scene: Scene) -> _Term:
     settings = scene.optimizer
     if settings.distance == "pF":
         return Dissimilarity(settings.tau_pF2)
-    from mscap.scene.calibration import NoiseModel
-    from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, design_scene
-
     scene = design_scene(scene)
     if settings.distance == "reconstruction":  # design_scene checked there is a family
         return -1.0 * ReconstructionBound(scene.design_family, settings.tau_mm)
@@ -408,7 +340,7 @@ def capacitance_term(scene: Scene) -> _Term:
 
 
 @dataclass(frozen=True)
-class PlateAreaBarrier(_Term):
+class PlateAreaBarrier(Term):
     """Barrier on the total plate area (the paper's "limited capacitor area"):
     b(1 − A/A_max) with the IPC barrier of :mod:`mscap.fem.elastic.contact` (d̂ = ``dhat``, relative),
     zero while A ≤ (1 − d̂) A_max, infinite at A ≥ A_max; A = Σ_j |area of outline j| (mm²)."""

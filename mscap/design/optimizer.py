@@ -7,7 +7,7 @@ fastest control ``first_step_mm``); the step is capped so that no control moves 
 ``max_step_mm``, no outline comes closer to another (or to the sheet edge) than allowed
 (:meth:`~mscap.design.objective.SeparationBarrier.max_step`, which keeps every gap above a tenth
 of its current value) and no triangle of the electrostatic or the elastic 2D mesh keeps
-less than a tenth of its area (:func:`max_step_triangles`, exact: the area is quadratic
+less than a tenth of its area (:func:`mscap.design.feasibility.max_step_triangles`, exact: the area is quadratic
 in the step). Backtracking (Armijo) from that cap; a trial whose elastic or electrostatic
 solve fails is halved like one that does not decrease J. Accepted iterates are therefore
 never overlapping, outside the sheet or inverted.
@@ -16,7 +16,7 @@ After each accepted step the minimum 2D angle of both meshes is checked; below
 ``remesh_angle_deg`` or below half the freshly meshed minimum, whichever is smaller (gmsh
 itself makes 9° angles on the default poking mesh, so 10° alone would remesh at every
 step), the sheet is remeshed from the current
-outlines (:func:`remesh`), each pose's displacement is interpolated onto the new elastic
+outlines (:func:`mscap.design.remesh.remesh`), each pose's displacement is interpolated onto the new elastic
 mesh for the warm start, and the L-BFGS memory restarts. On convergence (relative J
 change or gradient norm, per level) the controls double (:meth:`Design.refined`) for
 ``cascade_levels`` more levels.
@@ -31,19 +31,17 @@ from typing import Callable
 
 import numpy as np
 
-from mscap.design.pipeline import Design, DesignError, Evaluation, build_design
+from mscap.design.feasibility import feasible_step
+from mscap.design.pipeline import Design, DesignError, Evaluation
+from mscap.design.remesh import min_angle, needs_remesh, remesh
 from mscap.fem.elastic.problem import ElasticError
 from mscap.fem.electrostatic import ElectrostaticError
 from mscap.errors import GeometryError, MeshError
-from mscap.geometry.layout import Layout, check_layout, min_gap_mm
-from mscap.design.objective import layout_objective
+from mscap.geometry.layout import Layout, min_gap_mm
 from mscap.fem.petsc import LinearSolveError
-from mscap.mesh.quality import triangle_angles_deg
-from mscap.mesh.transfer import interpolation_matrix
-from mscap.design.history import HISTORY_FIELDS, Record
+from mscap.design.history import Record
 
-__all__ = ["OptimizeResult", "optimize", "feasible_step", "max_step_triangles",
-           "remesh", "resample_outline"]
+__all__ = ["OptimizeResult", "optimize"]
 
 log = logging.getLogger(__name__)
 
@@ -67,101 +65,6 @@ class OptimizeResult:
     @property
     def layout(self) -> Layout:
         return self.design.deformer.layout(self.evaluation.q)
-
-
-def max_step_triangles(points: np.ndarray, triangles: np.ndarray, directions: np.ndarray,
-                       keep: float = 0.1) -> float:
-    """Largest α ∈ [0, 1] such that along ``points + α directions`` every triangle keeps
-    at least ``keep`` of its (positive) signed area. The area is ``A0 + α A1 + α² A2``; the
-    bound is the smallest positive root of ``A(α) = keep A0`` (exact, vectorised)."""
-    p, v = points[triangles], directions[triangles]
-    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
-    f1, f2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
-    cross = lambda a, b: a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]  # noqa: E731
-    a0 = cross(e1, e2)
-    a1 = cross(e1, f2) + cross(f1, e2)
-    a2 = cross(f1, f2)
-    c = (1.0 - keep) * a0  # solve a2 α² + a1 α + c = 0 for the first α > 0
-    alpha = np.full(len(a0), np.inf)
-    linear = np.abs(a2) <= 1e-14 * (np.abs(a1) + np.abs(a0))
-    shrinking = linear & (a1 < 0)
-    alpha[shrinking] = c[shrinking] / -a1[shrinking]
-    quad = ~linear
-    disc = a1[quad] ** 2 - 4 * a2[quad] * c[quad]
-    roots = np.full(quad.sum(), np.inf)
-    real = disc >= 0
-    sq = np.sqrt(np.where(real, disc, 0.0))
-    r1 = (-a1[quad] - sq) / (2 * a2[quad])
-    r2 = (-a1[quad] + sq) / (2 * a2[quad])
-    for r in (r1, r2):
-        ok = real & (r > 0)
-        roots[ok] = np.minimum(roots[ok], r[ok])
-    alpha[quad] = roots
-    return float(min(1.0, alpha.min(initial=np.inf)))
-
-
-def _corners(polygon: np.ndarray, degrees: float) -> np.ndarray:
-    before = polygon - np.roll(polygon, 1, axis=0)
-    after = np.roll(polygon, -1, axis=0) - polygon
-    cos = np.einsum("ij,ij->i", before, after) / (np.linalg.norm(before, axis=1) * np.linalg.norm(after, axis=1))
-    return cos < np.cos(np.radians(degrees))
-
-
-def resample_outline(polygon: np.ndarray, spacing_mm: float, corner_deg: float = 20.0) -> np.ndarray:
-    """A closed polyline resampled at about ``spacing_mm`` along its arc, keeping the
-    vertices where it turns by more than ``corner_deg`` (the plate corners)."""
-    polygon = np.asarray(polygon, dtype=float)
-    corner = np.flatnonzero(_corners(polygon, corner_deg))
-    if not len(corner):
-        corner = np.array([0])
-    pieces = []
-    for a, b in zip(corner, np.roll(corner, -1)):
-        idx = np.arange(a, (b if b > a else b + len(polygon)) + 1) % len(polygon)
-        chain = polygon[idx]
-        seg = np.linalg.norm(np.diff(chain, axis=0), axis=1)
-        arc = np.concatenate([[0.0], np.cumsum(seg)])
-        n = max(1, int(np.ceil(arc[-1] / spacing_mm - 1e-9)))
-        s = arc[-1] * np.arange(n) / n
-        pieces.append(np.c_[np.interp(s, arc, chain[:, 0]), np.interp(s, arc, chain[:, 1])])
-    return np.vstack(pieces)
-
-
-def remesh(design: Design, evaluation: Evaluation) -> tuple[Design, list]:
-    """A new design meshed from the outlines at ``evaluation.q`` (resampled at the
-    scene's outline edge length, the same number of controls per outline) and each pose's
-    displacement interpolated onto the new elastic mesh (the warm start)."""
-    scene = design.scene
-    # Polygon vertices about every half elastic outline edge: each vertex is also embedded
-    # in the elastic mesh, so resampling at the fine outline spacing would refine the
-    # elastic mesh to it (16× the elements on the poking scene). The chordal error of
-    # 1.2 mm chords on a 10 mm radius is 0.02 mm. The chord is a whole number of fine
-    # outline edges: gmsh splits each chord into ceil(chord / edge) pieces, and shorter
-    # edges than the scene's would change the capacitance (by 4 % on a 1 mm mesh).
-    elastic, edge = scene.elastic, scene.mesh.edge_length_outline_mm
-    half = 0.5 * min(elastic.edge_length_outline_mm or 0.5 * elastic.edge_length_mm, elastic.edge_length_mm)
-    spacing = edge * max(1, int(np.floor(half / edge + 1e-9)))
-    outlines = tuple(resample_outline(o, spacing) for o in design.deformer.outlines(evaluation.q))
-    layout = Layout(outlines)
-    check_layout(layout, scene.sheet_outline_mm, scene.min_gap_mm)
-    counts = np.bincount(design.deformer.control_outline, minlength=layout.k)
-    new = build_design(scene, layout=layout, count=counts)
-    warm = [None] * len(scene.poses)
-    old = evaluation.sim.elastic
-    if old is not None and new.base.elastic is not None:
-        mapping = interpolation_matrix(old, new.base.elastic.rest)
-        warm = [None if u is None else mapping @ u for u in evaluation.displacements()]
-    return new, warm
-
-
-def _min_angle(design: Design, q) -> tuple[float, float]:
-    fine = design.deformer.points2d(q)
-    angle_fine = float(triangle_angles_deg(fine, design.deformer.mesh2d.triangles).min())
-    angle_el = np.inf
-    if design.elastic_weights is not None:
-        m = design.base.elastic.mesh.mesh2d
-        el = m.points + design.elastic_weights @ design.deformer._q(q)
-        angle_el = float(triangle_angles_deg(el, m.triangles).min())
-    return angle_fine, angle_el
 
 
 class _LBFGS:
@@ -210,11 +113,11 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
     history: list[Record] = []
     level, iteration, level_iterations, reason = 0, 0, 0, ""
     level_gradient = float(np.linalg.norm(g))
-    fresh = _min_angle(design, q)
+    fresh = min_angle(design, q)
     step_length = settings.first_step_mm
 
     def record(event, step=0.0, evaluations=1):  # evaluations of this event
-        angle = _min_angle(design, e.q)[0]
+        angle = min_angle(design, e.q)[0]
         r = Record(iteration, level, e.J, e.d, e.barrier, e.smoothing, float(np.linalg.norm(g)), step,
                    e.min_l1_pF, event, evaluations, int(sum(e.newton_iterations)), angle,
                    min_gap_mm(design.deformer.outlines(e.q), design.scene.sheet_outline_mm),
@@ -267,12 +170,12 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
                         if (change <= settings.relative_tolerance * max(abs(e.J), 1.0)
                                 or np.linalg.norm(g) <= settings.gradient_tolerance * level_gradient):
                             converged, reason = True, "converged"
-                        elif _needs_remesh(design, e.q, fresh, settings.remesh_angle_deg):
+                        elif needs_remesh(design, e.q, fresh, settings.remesh_angle_deg):
                             design, warm = remesh(design, e)
                             e = design.evaluate(design.deformer.zeros(), warm=warm)
                             g = _gradient(design, e)
                             memory.reset()
-                            fresh = _min_angle(design, e.q)
+                            fresh = min_angle(design, e.q)
                             step_length = settings.first_step_mm
                             record("remesh")
             if not converged:
@@ -287,7 +190,7 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
             level += 1
             level_iterations = 0
             level_gradient = float(np.linalg.norm(g))
-            fresh = _min_angle(design, e.q)
+            fresh = min_angle(design, e.q)
             step_length = settings.first_step_mm
             record("cascade")
     except DesignError as exc:  # a non-finite value: stop, naming where
@@ -301,31 +204,6 @@ def _gradient(design: Design, e: Evaluation) -> np.ndarray:
     g = design.gradient(e)
     e.release()
     return g
-
-
-def _needs_remesh(design: Design, q, fresh: tuple[float, float], limit_deg: float) -> bool:
-    """Has a 2D angle of either mesh dropped below ``limit_deg``, or below half the fresh
-    mesh's own minimum when that is smaller (gmsh's graded meshes start near 9°)?"""
-    angle = _min_angle(design, q)
-    return any(a < min(limit_deg, 0.5 * f) for a, f in zip(angle, fresh))
-
-
-def feasible_step(design: Design, q, p, alpha: float = 1.0, keep: float = 0.1) -> float:
-    """Largest ``α' ≤ alpha`` along ``q + α' p`` that keeps every outline gap (capacitor to
-    capacitor, capacitor to sheet, within an outline) above ``keep`` of its current
-    excess over the minimum and every triangle of both 2D meshes above ``keep`` of its
-    area: no overlap, no outline leaving the sheet, no inverted triangle."""
-    deformer = design.deformer
-    barrier = layout_objective(design.scene).barrier
-    v = alpha * deformer.displacement2d(p)
-    alpha *= barrier.max_step(deformer.outlines(q), [v[chain] for chain in deformer.outline_vertices], keep)
-    v = alpha * deformer.displacement2d(p)
-    alpha *= max_step_triangles(deformer.points2d(q), deformer.mesh2d.triangles, v, keep)
-    if design.elastic_weights is not None:
-        m = design.base.elastic.mesh.mesh2d
-        el = m.points + design.elastic_weights @ deformer._q(q)
-        alpha *= max_step_triangles(el, m.triangles, alpha * (design.elastic_weights @ deformer._q(p)), keep)
-    return alpha
 
 
 def _line_search(design: Design, e: Evaluation, g: np.ndarray, p: np.ndarray, alpha: float,

@@ -36,11 +36,10 @@ import numpy as np
 from mscap.fem.adjoint import moved, pose_rest_gradient
 from mscap.design.deformer import Deformer, build_deformer
 from mscap.errors import DesignError
-from mscap.fem.elastic.newton import Operator
 from mscap.design.objective import layout_objective
 from mscap.scene import Scene
 from mscap.scene.loader import check_designable
-from mscap.fem.petsc import LinearSolver
+from mscap.fem.petsc import LinearSolver, Operator
 from mscap.design.readback import design_scene
 from mscap.design.history import min_pairwise_l1
 from mscap.fem.simulate import Simulation, elastic_setup, simulate, solve_poses

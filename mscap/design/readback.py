@@ -40,7 +40,7 @@ import numpy as np
 from mscap.scene.calibration import NoiseModel, family_poses
 from mscap.scene.loader import check_optimizer, family_grid_counts
 from mscap.scene.settings import Scene
-from mscap.design.objective import _Term, soft_min
+from mscap.design.terms import Term, soft_min
 
 __all__ = ["DesignFamily", "design_family", "design_scene", "ProtocolDissimilarity",
            "ReconstructionBound", "reading_variance", "difference_variance", "grid_pose_name", "grid_derivatives"]
@@ -217,7 +217,7 @@ def _back_features(c, reference_row, g_f, g_ref) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class ProtocolDissimilarity(_Term):
+class ProtocolDissimilarity(Term):
     """Soft minimum (τ, dimensionless) of pairwise squared distances between the design
     poses' read-outs in units of the read-out noise of the protocol:
 
@@ -250,7 +250,7 @@ class ProtocolDissimilarity(_Term):
 
 
 @dataclass(frozen=True, eq=False)
-class ReconstructionBound(_Term):
+class ReconstructionBound(Term):
     """Soft maximum over the grid (temperature ``tau_mm``) of the Cramér–Rao bound on the
     RMS per-vertex reconstruction error (mm):
 

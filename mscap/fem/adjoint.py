@@ -54,7 +54,8 @@ from mscap.errors import AdjointError
 from mscap.mesh.layered import LayeredMesh
 from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import ElasticState, Loading, NewtonSettings
-from mscap.fem.simulate import equilibrium
+from mscap.fem.petsc import LinearSolver
+from mscap.fem.simulate import solve_poses
 from mscap.scene.poses import PokePose, StretchPose
 from mscap.fem.profile import timed
 from typing import TYPE_CHECKING
@@ -293,9 +294,12 @@ def solve_moved_pose(sim, scene: Scene, pose_index: int, start: np.ndarray | Non
     """Capacitances (and equilibrium) of one pose of ``sim`` (e.g. from :func:`moved`).
 
     ``start`` is a displacement ``(n_nodes, 3)`` (e.g. of the pose at nearby rest
-    positions): Newton then starts from ``rest + start`` in one load step."""
-    pose = scene.poses[pose_index]
-    if pose.kind == "free":
-        return electrostatic.solve(sim.electro, sim.mesh.points), None
-    state = equilibrium(sim.elastic, pose, settings or scene.elastic, start=start)
-    return electrostatic.solve(sim.electro, sim.vertices(state.nodes)), state
+    positions): Newton then starts from ``rest + start`` in one load step (the forward
+    loop :func:`mscap.fem.simulate.solve_poses` on this one pose)."""
+    one = replace(scene, poses=(scene.poses[pose_index],), elastic=settings or scene.elastic)
+    solver = LinearSolver("electro_")
+    try:
+        result = solve_poses(sim, one, solver, None, [start])[0]
+    finally:
+        solver.destroy()
+    return result.capacitances, result.state

@@ -14,12 +14,13 @@ import sys
 from typing import NamedTuple
 
 import numpy as np
+import scipy.sparse as sp
 
 from mscap.errors import LinearSolveError
 from mscap.fem.profile import section
 
 __all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "LinearSolver",
-           "LinearSolveError"]
+           "LinearSolveError", "Operator"]
 
 _DEBIAN_PETSC = "/usr/lib/petscdir/petsc*/*-real"
 
@@ -168,3 +169,33 @@ class LinearSolver:
         pc = self.ksp.getPC()
         solver = pc.getFactorSolverType() if pc.getType() in ("cholesky", "lu") else ""
         return f"{self.ksp.getType()}/{pc.getType()}" + (f"/{solver}" if solver else "")
+
+
+class Operator:
+    """A matrix over a fixed CSR pattern (the elastic Hessian), and its solver: the pattern never
+    changes, so every factorisation after the first is numeric only
+    (:meth:`~mscap.fem.petsc.LinearSolver.set_csr` keeps the symbolic one)."""
+
+    def __init__(self, problem, prefix: str = "elastic_"):
+        """``problem``: anything with a CSR pattern ``indices``, ``indptr`` and ``n_dofs``
+        (an :class:`~mscap.fem.elastic.problem.ElasticProblem`)."""
+        self._pattern = (problem.indices, problem.indptr)
+        self._shape = (problem.n_dofs, problem.n_dofs)
+        self.solver = LinearSolver(prefix)
+
+    def factorise(self, data: np.ndarray) -> None:
+        """Factorise the matrix with CSR values ``data``; a failed factorisation raises
+        :class:`LinearSolveError` here or at the first :meth:`solve`."""
+        try:
+            self.solver.set_csr(sp.csr_matrix((data, *self._pattern), shape=self._shape))
+        except petsc().Error as exc:
+            raise LinearSolveError(f"{self.solver.description} factorisation failed: {exc}") from exc
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        return self.solver.solve(rhs)
+
+    def destroy(self) -> None:
+        """Free the PETSc matrix and the factorisation now: petsc4py objects do not free
+        their native memory when garbage-collected (an optimisation that kept one
+        adjoint factorisation per evaluation grew by ~34 MB per evaluation)."""
+        self.solver.destroy()

@@ -18,8 +18,8 @@ from mscap.fem import electrostatic
 from mscap.fem.elastic.problem import ElasticError, ElasticProblem, build_problem
 from mscap.mesh.layered import LayeredMesh, mesh_elastic, mesh_scene
 from mscap.fem.elastic.loading import loading_for
-from mscap.fem.elastic.newton import ElasticState, NewtonSettings, Operator, solve_pose
-from mscap.fem.petsc import LinearSolver
+from mscap.fem.elastic.newton import ElasticState, NewtonSettings, solve_pose
+from mscap.fem.petsc import LinearSolver, Operator
 from mscap.mesh.transfer import interpolation_matrix
 
 __all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibrium", "elastic_setup",

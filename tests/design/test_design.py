@@ -17,8 +17,7 @@ from mscap.design.history import min_pairwise_l1
 from mscap.scene import load_scene
 from mscap.testing import taylor_test
 from tests.conftest import to_toml
-from tests.fem.test_adjoint import glue_scene
-from tests.fem.test_elastic import poke_scene_dict, scene_dict
+from tests.scenes import glue_scene, poke_scene_dict, scene_dict
 
 pytest.importorskip("igl")
 

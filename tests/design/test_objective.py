@@ -7,33 +7,13 @@ import pytest
 
 from mscap.geometry import polygons as geometry
 from mscap.fem.elastic.contact import barrier
-from mscap.errors import GeometryError, MscapError
+from mscap.errors import GeometryError
 from mscap.design.objective import (Dissimilarity, LaplacianSmoothing, SeparationBarrier, Sum,
                              Weighted, layout_objective)
 from mscap.scene import load_scene
-from mscap.testing import taylor_test
+from tests.scenes import check_gradient
 
 SHEET = geometry.square((0.0, 0.0), 40.0)
-
-
-def flat(outlines):
-    return np.concatenate([np.ravel(o) for o in outlines])
-
-
-def unflat(vector, like):
-    sizes = np.cumsum([np.size(o) for o in like])[:-1]
-    return [v.reshape(np.shape(o)) for v, o in zip(np.split(vector, sizes), like)]
-
-
-def check_gradient(term, x, rng, h0, geometric=True):
-    """Taylor rates over four halvings and the central-difference relative error."""
-    wrap = (lambda v: unflat(v, x)) if geometric else (lambda v: v.reshape(np.shape(x)))
-    x0 = flat(x) if geometric else np.ravel(x)
-    value, grad = term.value_and_gradient(wrap(x0))
-    grad = flat(grad) if geometric else np.ravel(grad)
-    result = taylor_test(lambda v: term.value(wrap(v)), x0, rng.standard_normal(x0.size), grad,
-                         value=value, h0=h0, halvings=4, central_step=1e-3 * h0)
-    return result.rates, result.central_error
 
 
 def brute_dissimilarity(c, tau):

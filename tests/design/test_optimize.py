@@ -17,11 +17,12 @@ from mscap.cli import main
 from mscap.design.pipeline import build_design
 from mscap.geometry.layout import check_layout
 from mscap.design.history import HISTORY_FIELDS
-from mscap.design.optimizer import (_LBFGS, feasible_step, max_step_triangles, optimize, remesh,
-                            resample_outline)
+from mscap.design.feasibility import feasible_step, max_step_triangles
+from mscap.design.optimizer import _LBFGS, optimize
+from mscap.design.remesh import remesh, resample_outline
 from mscap.scene import load_scene
 from tests.conftest import grid_trimesh, to_toml
-from tests.fem.test_elastic import scene_dict
+from tests.scenes import scene_dict
 
 pytest.importorskip("igl")
 

@@ -19,7 +19,7 @@ from mscap.design.readback import (DesignFamily, ProtocolDissimilarity, Reconstr
                             design_scene, grid_derivatives, difference_variance, reading_variance)
 from mscap.scene import load_scene
 from mscap.service.selection import RunSummary, select
-from tests.design.test_objective import check_gradient
+from tests.scenes import check_gradient
 
 NOISE = NoiseModel(relative_shift=0.15, additive_pF=2.0)
 

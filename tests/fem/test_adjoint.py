@@ -26,7 +26,7 @@ from mscap.scene import load_scene
 from mscap.fem.simulate import simulate
 from mscap.testing import taylor_test
 from tests.conftest import to_toml
-from tests.fem.test_elastic import grid_mesh, poke_scene_dict, scene_dict, stack, strained
+from tests.scenes import glue_scene, grid_mesh, poke_scene_dict, scene_dict, stack, strained
 
 ORDERS = pytest.mark.parametrize("order", [1, 2])
 
@@ -101,18 +101,6 @@ def test_ball_rest_vjp_matches_central_differences(tiny_mesh, order):
 # --- Taylor tests of whole poses -------------------------------------------------------
 
 STRETCH = [{"name": "pull", "kind": "stretch", "mode": "uniaxial", "stretch": 1.2, "grips": "clamp"}]
-
-
-def glue_scene(order):
-    """A 20 × 10 mm sheet with one skewed plate glued onto a cylinder of radius 20 mm."""
-    return scene_dict(
-        name="glued", sheet={"width_mm": 20.0, "height_mm": 10.0},
-        capacitors={"min_gap_mm": 1.0, "outlines_mm": [[[4.0, 2.0], [13.0, 2.5], [14.0, 7.5], [5.0, 8.0]]]},
-        mesh={"edge_length_mm": 3.0, "edge_length_outline_mm": 1.0, "grading_distance_mm": 2.0},
-        objects={"arm": {"generator": "cylinder", "width_mm": 30.0, "height_mm": 20.0,
-                         "corner_mm": [-5.0, -5.0], "edge_length_mm": 1.0}},
-        poses=[{"name": "bent", "kind": "glue", "object": "arm", "radius_mm": 20.0}],
-        elastic={"edge_length_mm": 4.0, "order": order})
 
 
 SCENES = {

@@ -7,7 +7,6 @@ Meshes are tiny structured triangulations (or coarse gmsh scenes) extruded throu
 
 from __future__ import annotations
 
-import copy
 import json
 import re
 
@@ -21,47 +20,20 @@ from mscap.cli import main
 from mscap.fem.elastic.contact import Ball, barrier, barrier_derivatives
 from mscap.fem.elastic.problem import ElasticError, assemble, build_problem, tet_fields, total_energy
 from mscap.errors import SceneError
-from mscap.mesh.layered import extrude
 from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import Loading, NewtonSettings, solve_pose
 from mscap.scene.poses import StretchPose
-from mscap.scene.settings import Layer, Material
 from mscap.scene import load_scene
 from mscap.fem.simulate import simulate
 from mscap.testing import taylor_test
-from tests.conftest import SMALL_SCENE, grid_trimesh, to_toml
+from tests.conftest import to_toml
+from tests.scenes import CARBON, CLEAR, STACK_MM, free_thickness_stretch, grid_mesh, poke_scene_dict, scene_dict, stack, strained
 
-# Paper §4.2 (as in SMALL_SCENE): the two silicones differ in E but share ν = 0.47.
-CLEAR = Material("clear", 0.57, 0.47, 2.84)
-CARBON = Material("carbon", 1.1, 0.47, 2.84)
-KINDS = ("dielectric", "conductive", "dielectric", "conductive", "dielectric")
-STACK_MM = (0.14, 0.07, 0.14, 0.07, 0.14)
 ORDERS = pytest.mark.parametrize("order", [1, 2])
-
-
-def stack(dielectric=CLEAR, plate=CARBON, fill=CLEAR):
-    """The five layers: ``dielectric`` in layers 0, 2, 4; ``plate`` / ``fill`` in 1, 3."""
-    return [Layer(f"layer{i}", kind, t, plate, fill) if kind == "conductive" else
-            Layer(f"layer{i}", kind, t, dielectric) for i, (kind, t) in enumerate(zip(KINDS, STACK_MM))]
-
-
-def grid_mesh(nx, ny, width, height, capacitor_of_centroid=None, jitter=0.25, seed=0):
-    """A structured triangulation of ``width × height`` mm, interior vertices jittered by
-    ``jitter`` cells, extruded with one element per layer. ``capacitor_of_centroid``
-    defaults to one plate covering the whole sheet."""
-    owner = capacitor_of_centroid or (lambda centroids: np.zeros(len(centroids)))
-    return extrude(grid_trimesh(nx, ny, width, height, owner, jitter, seed), STACK_MM, 1)
 
 
 def dense(problem, data):
     return sp.csr_matrix((data, problem.indices, problem.indptr), shape=(problem.n_dofs,) * 2).toarray()
-
-
-def scene_dict(**changes):
-    """SMALL_SCENE with some top-level entries replaced."""
-    data = copy.deepcopy(SMALL_SCENE)
-    data.update(copy.deepcopy(changes))
-    return data
 
 
 # --- derivatives -----------------------------------------------------------------------
@@ -74,15 +46,6 @@ def tiny():
     problems = {order: build_problem(mesh, stack(), order) for order in (1, 2)}
     assert len(np.unique(problems[1].mu)) == 2
     return problems
-
-
-def strained(problem, seed=0):
-    """A generic large strain: 30 % stretch, 20 % and 30 % compression, shear, plus node
-    noise (smaller for P2, whose edge nodes are closer to their neighbours). Compression
-    makes the tangent indefinite."""
-    a = np.array([[1.3, 0.2, 0.05], [-0.1, 0.8, 0.1], [0.02, -0.05, 0.7]])
-    noise = 0.01 if problem.order == 1 else 0.003
-    return problem.rest @ a.T + np.random.default_rng(seed).normal(scale=noise, size=problem.rest.shape)
 
 
 def unit_steps(problem, h):
@@ -264,15 +227,6 @@ def test_affine_patch_test(order):
     assert np.abs(state.nodes - target).max() < 1e-10 * size
 
 
-def free_thickness_stretch(l1, l2, material):
-    """λ3 for which F = diag(λ1, λ2, λ3) has no normal stress P33.
-
-    From P = μ (F − F⁻ᵀ) + λ ln J F⁻ᵀ: P33 = [μ (λ3² − 1) + λ ln(λ1 λ2 λ3)] / λ3, whose
-    root depends on λ/μ = 2ν/(1 − 2ν) only."""
-    mu, lam = material.lame_MPa
-    return brentq(lambda l3: mu * (l3 ** 2 - 1) + lam * np.log(l1 * l2 * l3), 0.1, 10.0, xtol=1e-15)
-
-
 @pytest.fixture(scope="module")
 def full_plate():
     """One capacitor covering a 6 × 4 mm sheet: at rest and after any in-plane affine map
@@ -338,17 +292,6 @@ def test_clamped_uniaxial_stretch_is_not_homogeneous(full_plate):
 
 
 # --- poke ------------------------------------------------------------------------------
-
-def poke_scene_dict():
-    """A 30 mm square sheet, one 10 mm capacitor in the middle, a 5 mm ball 3 mm deep."""
-    return scene_dict(
-        name="poke",
-        sheet={"width_mm": 30.0, "height_mm": 30.0},
-        capacitors={"min_gap_mm": 1.0, "outlines_mm": [[[10.0, 10.0], [20.0, 10.0], [20.0, 20.0], [10.0, 20.0]]]},
-        mesh={"edge_length_mm": 3.0, "edge_length_outline_mm": 0.5, "grading_distance_mm": 2.0},
-        poses=[{"name": "rest", "kind": "free"},
-               {"name": "press", "kind": "poke", "center_mm": [15.0, 15.0], "radius_mm": 5.0,
-                "depth_mm": 3.0, "held_edges": ["x_min", "x_max"]}])
 
 
 @pytest.fixture(scope="module")

@@ -22,7 +22,7 @@ from mscap.scene import load_scene
 from mscap.fem.simulate import simulate
 from mscap.mesh.transfer import interpolation_matrix, locate
 from tests.conftest import grid_trimesh, to_toml
-from tests.fem.test_elastic import CLEAR, STACK_MM, free_thickness_stretch, poke_scene_dict, stack
+from tests.scenes import CLEAR, STACK_MM, free_thickness_stretch, poke_scene_dict, stack
 
 FULL = lambda centroids: np.zeros(len(centroids))  # noqa: E731 — one plate over the sheet
 

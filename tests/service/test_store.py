@@ -45,11 +45,8 @@ def writer_script(path, scene, first_seed: int, then: str) -> str:
 
 
 @pytest.fixture
-def scene(small_scene_dict, write_scene):
-    small_scene_dict["multistart"] = {"k_min": 2, "k_max": 4, "starts_per_k": 3, "plateau_tol": 0.05}
-    small_scene_dict["poses"] = [{"name": "rest", "kind": "free"}, {"name": "a", "kind": "free"},
-                                 {"name": "b", "kind": "free"}]
-    return load_scene(write_scene(small_scene_dict))
+def scene(free_poses_scene):
+    return free_poses_scene(k_max=4)
 
 
 @pytest.fixture

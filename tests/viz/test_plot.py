@@ -9,7 +9,6 @@ import pytest
 
 from mscap.cli import main
 from mscap.viz.layouts import PANEL_SIZE_IN, grid_shape, panels
-from mscap.scene import load_scene
 from mscap.service.selection import RunSummary, select
 from mscap.service.store import failed_record, open_store, store_selection, write_run
 from tests.conftest import synthetic_record
@@ -18,11 +17,8 @@ DPI = 50
 
 
 @pytest.fixture
-def scene(small_scene_dict, write_scene):
-    small_scene_dict["multistart"] = {"k_min": 2, "k_max": 5, "starts_per_k": 3, "plateau_tol": 0.05}
-    small_scene_dict["poses"] = [{"name": "rest", "kind": "free"}, {"name": "a", "kind": "free"},
-                                 {"name": "b", "kind": "free"}]
-    return load_scene(write_scene(small_scene_dict))
+def scene(free_poses_scene):
+    return free_poses_scene(k_max=5)
 
 
 def png_size(path) -> tuple[int, int]:

@@ -37,11 +37,12 @@ import scipy.sparse as sp
 
 from mscap.fem.elastic.contact import Ball
 from mscap.fem.elastic.problem import ElasticError, ElasticProblem, assemble, total_energy
-from mscap.fem.petsc import LinearSolveError, LinearSolver, petsc
+from mscap.errors import LinearSolveError
+from mscap.fem.petsc import Operator
 from mscap.fem.profile import timed
 from mscap.scene.settings import HESSIAN_MODES, ElasticSettings
 
-__all__ = ["Loading", "NewtonSettings", "ElasticState", "Operator", "solve_pose", "HESSIAN_MODES"]
+__all__ = ["Loading", "NewtonSettings", "ElasticState", "solve_pose", "HESSIAN_MODES"]
 
 log = logging.getLogger(__name__)
 
@@ -127,34 +128,6 @@ class ElasticState:
     def vertices(self, n_vertices: int) -> np.ndarray:
         """``(n_vertices, 3)`` vertex positions (mm)."""
         return self.nodes[:n_vertices]
-
-
-class Operator:
-    """The Hessian over the problem's fixed CSR pattern, and its solver: the pattern never
-    changes, so every factorisation after the first is numeric only
-    (:meth:`~mscap.fem.petsc.LinearSolver.set_csr` keeps the symbolic one)."""
-
-    def __init__(self, problem: ElasticProblem, prefix: str = "elastic_"):
-        self._pattern = (problem.indices, problem.indptr)
-        self._shape = (problem.n_dofs, problem.n_dofs)
-        self.solver = LinearSolver(prefix)
-
-    def factorise(self, data: np.ndarray) -> None:
-        """Factorise the matrix with CSR values ``data``; a failed factorisation raises
-        :class:`LinearSolveError` here or at the first :meth:`solve`."""
-        try:
-            self.solver.set_csr(sp.csr_matrix((data, *self._pattern), shape=self._shape))
-        except petsc().Error as exc:
-            raise LinearSolveError(f"{self.solver.description} factorisation failed: {exc}") from exc
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        return self.solver.solve(rhs)
-
-    def destroy(self) -> None:
-        """Free the PETSc matrix and the factorisation now: petsc4py objects do not free
-        their native memory when garbage-collected (an optimisation that kept one
-        adjoint factorisation per evaluation grew by ~34 MB per evaluation)."""
-        self.solver.destroy()
 
 
 class _Stall(Exception):
