@@ -1,16 +1,24 @@
-"""Reports of a forward simulation: the pose × capacitor table of ``mscap simulate`` and
-its JSON record."""
+"""Reports of a forward simulation: the pose × capacitor table of ``mscap simulate``, the
+rest capacitances of ``mscap capacitance``, and their JSON records."""
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
+
+from mscap.fem import electrostatic
+from mscap.fem.petsc import LinearSolver
 from mscap.fem.simulate import Simulation
+from mscap.mesh.layered import LayeredMesh, mesh_scene
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["simulation_record", "simulation_text"]
+__all__ = ["simulation_record", "simulation_text", "RestCapacitance", "rest_capacitance",
+           "rest_capacitance_record", "rest_capacitance_text"]
 
 
 def _iterations(sim: Simulation) -> list[int]:
@@ -53,4 +61,74 @@ def simulation_text(scene: Scene, sim: Simulation) -> str:
     if sim.elastic is not None:
         lines.append("  elastic: " + ", ".join(f"{key.replace('_', ' ')} {value:.2f} s"
                                                for key, value in t["elastic_split"].items()))
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class RestCapacitance:
+    """The scene at rest: its mesh, electrostatic problem, capacitances, the solver's
+    description and the time per stage (s)."""
+
+    mesh: LayeredMesh
+    problem: electrostatic.ElectrostaticProblem
+    capacitances: electrostatic.Capacitances
+    order: int
+    solver: str
+    times: dict
+
+
+def rest_capacitance(scene: Scene, order: int | None = None, maxwell: bool = False) -> RestCapacitance:
+    """Mesh ``scene`` and solve its electrostatics at rest (top plate at 1 V, all other
+    plates grounded; with ``maxwell`` also the Maxwell matrix of all 2k plates)."""
+    order = order or scene.mesh.order
+    start = time.perf_counter()
+    mesh = mesh_scene(scene)
+    meshed = time.perf_counter()
+    problem = electrostatic.build_problem(mesh, scene.layers, order)
+    prepared = time.perf_counter()
+    solver = LinearSolver("electro_")
+    try:
+        caps = electrostatic.solve(problem, maxwell=maxwell, solver=solver)
+        description = solver.description
+    finally:
+        solver.destroy()
+    times = {"mesh": meshed - start, "setup": prepared - meshed,
+             "assembly_factorisation": caps.assembly_s + caps.factorisation_s,
+             "solves": caps.solve_s, "total": time.perf_counter() - start}
+    return RestCapacitance(mesh, problem, caps, order, description, times)
+
+
+def rest_capacitance_record(scene: Scene, rest: RestCapacitance, written=None) -> dict:
+    """One JSON-ready record of :func:`rest_capacitance`."""
+    caps, mesh = rest.capacitances, rest.mesh
+    record = {"scene": scene.name, "order": rest.order, "solver": rest.solver,
+              "capacitance_pF": caps.capacitance_pF.tolist()}
+    if caps.maxwell_pF is not None:
+        record["maxwell_pF"] = caps.maxwell_pF.tolist()
+    record.update({"time_s": rest.times, "mesh": {"vertices": len(mesh.points), "tets": len(mesh.tets),
+                                                  "dofs": rest.problem.n_dofs}})
+    if written:
+        record["file"] = str(written)
+    return record
+
+
+def rest_capacitance_text(scene: Scene, rest: RestCapacitance) -> str:
+    """Each capacitor's area, capacitance and ratio to the parallel-plate ε A / d, the
+    Maxwell matrix when solved, and the time per stage."""
+    caps, mesh, problem, times = rest.capacitances, rest.mesh, rest.problem, rest.times
+    middle = scene.layers[2]
+    areas = scene.layout.areas_mm2()
+    lines = [f"scene {scene.name} ({scene.path}): {problem.k} capacitors, P{rest.order}, "
+             f"{len(mesh.points)} vertices, {len(mesh.tets)} tets, {problem.n_dofs} dofs, solver {rest.solver}",
+             f"  {'capacitor':>9} {'area_mm2':>10} {'C_pF':>12} {'C/(eps A/d)':>12}"]
+    for j, c in enumerate(caps.capacitance_pF):
+        plate = middle.material.permittivity_pF_per_mm * areas[j] / middle.thickness_mm
+        lines.append(f"  {j:>9d} {areas[j]:>10.3f} {c:>12.5f} {c / plate:>12.5f}")
+    if caps.maxwell_pF is not None:
+        lines.append("  Maxwell matrix (pF), plates: bottom 0..k-1, then top 0..k-1")
+        with np.printoptions(precision=4, suppress=True, linewidth=200):
+            lines += ["    " + np.array2string(row) for row in caps.maxwell_pF]
+    lines.append(f"  time: mesh {times['mesh']:.2f} s, setup {times['setup']:.2f} s, assembly+factorisation "
+                 f"{times['assembly_factorisation']:.2f} s, solves {times['solves']:.2f} s, "
+                 f"total {times['total']:.2f} s")
     return "\n".join(lines)
