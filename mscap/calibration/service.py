@@ -273,7 +273,7 @@ def simulate_family(scene: Scene, designs: list[Candidate], cache_path, comm=Non
         finally:
             cache.close()
 
-    farm.run(comm, lambda: _work(scene, designs, poses_of), master,
+    farm.run(comm, lambda ask: _work(scene, designs, poses_of), master,
              "stopped: the finished poses are cached; rerun the same command to complete the rest", say)
 
 

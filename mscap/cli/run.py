@@ -14,6 +14,11 @@ def add_parser(sub) -> None:
     p.add_argument("--k-min", type=int, help="only starts with k >= this")
     p.add_argument("--k-max", type=int, help="only starts with k <= this")
     p.add_argument("--seeds", metavar="A:B", help="only start indices A..B-1 within each k")
+    p.add_argument("--starts-per-k", type=int, metavar="N",
+                   help="N starts per k instead of the scene's [multistart] starts_per_k")
+    p.add_argument("--prune", metavar="STEP:ETA",
+                   help="prune dominated starts from STEP accepted steps on, keeping the best 1/ETA at "
+                        "each rung (0 disables; default: the scene's prune_first_step, prune_eta)")
     p.add_argument("--max-iterations", type=int, help="L-BFGS iterations per level (default: the scene's)")
     p.add_argument("--force", action="store_true", help="start the file over even if it holds another scene")
     p.add_argument("--retry-failed", action="store_true", help="run the starts stored as failed again")
@@ -27,9 +32,10 @@ def run(args) -> int:
     from mscap.service.multistart import run_multistart
     from mscap.service.selection import configurations
     from mscap.cli.common import load_scene_for, progress_printer
+    from mscap.scene.loader import with_overrides
 
     comm = MPI.COMM_WORLD
-    scene = load_scene_for(args)
+    scene = with_overrides(load_scene_for(args), args.starts_per_k, args.prune)
     index_of = {c.id: i % max(scene.multistart.starts_per_k, 1) for i, c in enumerate(configurations(scene))}
     lo, hi = 0, None
     if args.seeds:

@@ -14,7 +14,7 @@ __all__ = ["HISTORY_FIELDS", "Record", "min_pairwise_l1"]
 #: parts (d in pF², barrier and smoothing unweighted, mm²), ‖dJ/dq‖ (2-norm), the step
 #: (largest control displacement, mm), min pairwise L1 distance of the poses'
 #: capacitance vectors (pF), the event ("start", "step", "remesh", "cascade",
-#: "converged", "stalled", "max_iterations"), evaluations in the line search, Newton iterations of all
+#: "converged", "stalled", "max_iterations", "pruned"), evaluations in the line search, Newton iterations of all
 #: poses in the accepted evaluation, minimum 2D angle of the electrostatic mesh (deg),
 #: smallest gap between two outlines or an outline and the sheet edge (mm, exact: the
 #: accepted layouts never overlap), wall time since the start (s).

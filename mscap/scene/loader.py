@@ -26,7 +26,7 @@ from mscap.scene.settings import (DEFAULT_FAMILY_COUNT, DESIGN_POSES, DISTANCES,
                                   Layer, Material, MeshSettings, MultistartSettings, OptimizerSettings, Scene)
 
 __all__ = ["load_scene", "check_optimizer", "check_multistart", "check_designable", "family_grid_counts",
-           "read_multistart", "select_poses"]
+           "read_multistart", "select_poses", "with_overrides"]
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -346,12 +346,17 @@ def family_grid_counts(path: str, optimizer: OptimizerSettings, calibration: Cal
 
 
 def check_multistart(path: str, multistart: MultistartSettings) -> None:
-    """Check ``[multistart]``: k_min ≤ k_max, starts per k within the seed scheme."""
+    """Check ``[multistart]``: k_min ≤ k_max, starts per k within the seed scheme, a
+    pruning ratio of at least 2."""
     if multistart.k_min > multistart.k_max:
         raise SceneError(path, "multistart.k_min", f"k_min = {multistart.k_min} exceeds k_max = {multistart.k_max}")
     if not 0 <= multistart.starts_per_k < MAX_STARTS_PER_K:
         raise SceneError(path, "multistart.starts_per_k",
                          f"must be in 0..{MAX_STARTS_PER_K - 1}, got {multistart.starts_per_k!r}")
+    if multistart.prune_first_step > 0 and multistart.prune_eta < 2:
+        raise SceneError(path, "multistart.prune_eta",
+                         f"must be at least 2 when prune_first_step > 0 (keep the best 1/eta), "
+                         f"got {multistart.prune_eta!r}")
 
 
 def read_multistart(data: dict, path: str) -> MultistartSettings:
@@ -378,3 +383,27 @@ def select_poses(scene: Scene, names: list[str]) -> Scene:
     if unknown:
         raise SceneError(scene.path, "poses", f"no pose named {unknown[0]!r}; the scene has {', '.join(known)}")
     return replace(scene, poses=tuple(p for p in scene.poses if p.name in names))
+
+
+def with_overrides(scene: Scene, starts_per_k: int | None = None, prune: str | None = None) -> Scene:
+    """``scene`` with ``[multistart]`` values from the command line (``mscap run
+    --starts-per-k N --prune STEP:ETA``), checked like the file's."""
+    changes = {}
+    if starts_per_k is not None:
+        changes["starts_per_k"] = starts_per_k
+    if prune is not None:
+        first, _, eta = prune.partition(":")
+        try:
+            changes["prune_first_step"] = int(first)
+            if eta:
+                changes["prune_eta"] = int(eta)
+        except ValueError:
+            raise SceneError(scene.path, "multistart.prune_first_step",
+                             f"--prune expects STEP or STEP:ETA (integers), got {prune!r}") from None
+        if changes["prune_first_step"] < 0:
+            raise SceneError(scene.path, "multistart.prune_first_step", f"must be >= 0, got {first!r}")
+    if not changes:
+        return scene
+    multistart = replace(scene.multistart, **changes)
+    check_multistart(scene.path, multistart)
+    return replace(scene, multistart=multistart)

@@ -167,7 +167,10 @@ class MultistartSettings:
     ``k_min`` to ``k_max``, ``starts_per_k`` starts each, the first
     ``ceil(lloyd_fraction · starts_per_k)`` of them Lloyd layouts; the plateau rule's
     ``plateau_tol``; ``error_estimate``: re-simulate every run's final design on a mesh
-    one level finer (:mod:`mscap.service.accuracy`)."""
+    one level finer (:mod:`mscap.service.accuracy`). Pruning (:mod:`mscap.service.pruning`):
+    after ``prune_first_step`` accepted steps, and again after ``prune_eta`` times as many,
+    a start whose J is not among the best 1/``prune_eta`` of the starts of its k at that
+    step stops (status ``"pruned"``); ``prune_first_step = 0`` (the default) never prunes."""
 
     k_min: int = 2
     k_max: int = 6
@@ -176,6 +179,8 @@ class MultistartSettings:
     plateau_tol: float = 0.05
     seed: int = 0
     error_estimate: bool = True
+    prune_first_step: int = 0
+    prune_eta: int = 3
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,9 @@ calibration's training simulations.
 The master hands out tasks one at a time to whichever worker speaks first (dynamic
 scheduling: Iprobe plus 10 ms sleeps, so an idle master costs no core) and passes each
 result to a callback; a worker says "ready", then loops: receive a task, send back its
-result, until told to stop. Tasks and results are pickled Python objects. SIGTERM (what
+result, until told to stop. While on a task a worker may *ask* the master a question
+(a pruning checkpoint) and wait for its answer. Tasks, questions, answers and results are
+pickled Python objects. SIGTERM (what
 SLURM sends at the time limit) and Ctrl-C set :class:`Stop`, which makes the master hand
 out nothing more.
 
@@ -20,10 +22,10 @@ from typing import Any, Callable, Iterable, TypeVar
 
 Result = TypeVar("Result")
 
-__all__ = ["TAGS", "Stop", "farm", "serve", "release", "run"]
+__all__ = ["TAGS", "Stop", "farm", "serve", "ask_master", "release", "run"]
 
 #: Message tags between master and workers, in one place.
-TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4}
+TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4, "ask": 5, "answer": 6}
 
 
 class Stop:
@@ -40,9 +42,11 @@ class Stop:
         signal.signal(signal.SIGTERM, self._previous)
 
 
-def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop) -> None:
+def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop,
+         answer: Callable[[Any], Any] | None = None) -> None:
     """Master side: every task of ``todo`` to a worker, ``record(result)`` for each
-    result; returns when all workers are stopped (or at once when ``stop`` is set)."""
+    result, ``answer(question)`` sent back to a worker that asks; returns when all
+    workers are stopped (or at once when ``stop`` is set)."""
     from mpi4py import MPI
 
     status = MPI.Status()
@@ -55,6 +59,9 @@ def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop) -> Non
             time.sleep(0.01)
         message = comm.recv(source=status.Get_source(), tag=status.Get_tag(), status=status)
         worker = status.Get_source()
+        if status.Get_tag() == TAGS["ask"]:  # a busy worker waits for the answer
+            comm.send(None if answer is None else answer(message), dest=worker, tag=TAGS["answer"])
+            continue
         if status.Get_tag() == TAGS["result"]:
             record(message)
         if queue and not stop.requested:
@@ -77,6 +84,15 @@ def serve(comm, work: Callable[[Any], Any]) -> None:
         comm.send(work(task), dest=0, tag=TAGS["result"])
 
 
+def ask_master(comm) -> Callable[[Any], Any]:
+    """Worker side: ``ask(question)`` sends a question to the master and returns its
+    answer (the master answers between the other workers' messages)."""
+    def ask(question):
+        comm.send(question, dest=0, tag=TAGS["ask"])
+        return comm.recv(source=0, tag=TAGS["answer"])
+    return ask
+
+
 def release(comm) -> None:
     """Master side, before any task was sent: let every worker go (the master failed
     early, e.g. on a refused file; the workers must not wait forever)."""
@@ -84,39 +100,41 @@ def release(comm) -> None:
         comm.send(None, dest=worker, tag=TAGS["stop"])
 
 
-#: ``execute(tasks, record)``: the master's one call that gets every task done.
-Execute = Callable[[Iterable, Callable[[Any], None]], None]
+#: ``execute(tasks, record, answer=None)``: the master's one call that gets every task done.
+Execute = Callable[..., None]
 
 
-def run(comm, make_work: Callable[[], Callable[[Any], Any]],
+def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any], Any]],
         master: Callable[[Execute, Stop], Result], stopped_message: str,
         say: Callable[[str], None]) -> Result | None:
     """The MPI master/worker skeleton of every service.
 
-    Ranks > 0 serve ``make_work()`` until told to stop and return ``None``. Rank 0 returns
-    ``master(execute, stop)``: the master opens its files, plans its tasks and calls
-    ``execute(tasks, record)`` once, which runs them here on a single rank or farms them
-    out, calling ``record(result)`` for each. If the master fails before ``execute`` the
+    Ranks > 0 serve ``make_work(ask)`` until told to stop and return ``None``; ``ask``
+    puts a question to the master. Rank 0 returns ``master(execute, stop)``: the master
+    opens its files, plans its tasks and calls ``execute(tasks, record, answer)`` once,
+    which runs them here on a single rank (``ask`` is then ``answer`` itself) or farms them
+    out, calling ``record(result)`` for each result and ``answer(question)`` for each
+    question. If the master fails before ``execute`` the
     workers are released; SIGTERM or Ctrl-C set ``stop`` (nothing more is handed out, the
     master closes its files as usual), then rank 0 says ``stopped_message`` and aborts the
     workers still busy (a busy start cannot be interrupted otherwise)."""
     if comm.Get_rank() != 0:
-        serve(comm, make_work())
+        serve(comm, make_work(ask_master(comm)))
         return None
     stop, farming = Stop(), False
 
-    def execute(tasks: Iterable, record: Callable[[Any], None]) -> None:
+    def execute(tasks: Iterable, record: Callable[[Any], None], answer: Callable[[Any], Any] | None = None) -> None:
         nonlocal farming
         farming = True
         try:
             if comm.Get_size() == 1:
-                work = make_work()
+                work = make_work(answer)
                 for task in tasks:
                     if stop.requested:
                         break
                     record(work(task))
             else:
-                farm(comm, tasks, record, stop)
+                farm(comm, tasks, record, stop, answer)
         except KeyboardInterrupt:
             stop.requested = True
 

@@ -13,6 +13,9 @@ __all__ = ["merge"]
 log = logging.getLogger(__name__)
 
 
+#: Which copy of a run stored in several files the merge keeps: the highest.
+_PREFERENCE = {"ok": 2, "pruned": 1, "failed": 0}
+
 def merge(inputs, output, force: bool = False) -> int:
     """Merge ``inputs`` into ``output``; returns the number of runs written.
 
@@ -40,10 +43,10 @@ def merge(inputs, output, force: bool = False) -> int:
                                  f"{path} has {f.attrs['scene_path']} (sha256 {f.attrs['scene_sha256']})")
         source = {}
         for f in files:
-            for rid in sorted(finished_ids(f)):
-                ok = f["runs"][rid].attrs["status"] == "ok"
-                if rid not in source or (ok and source[rid][1] is False):
-                    source[rid] = (f, ok)
+            for rid in sorted(finished_ids(f)):  # a complete run over a pruned one over a failed one
+                rank = _PREFERENCE.get(str(f["runs"][rid].attrs["status"]), 0)
+                if rid not in source or rank > source[rid][1]:
+                    source[rid] = (f, rank)
         a = first.attrs
         with create_store(output, a["scene_toml"], a["scene_sha256"], a["scene_name"], a["scene_path"],
                           max(int(f.attrs["mpi_size"]) for f in files)) as out:

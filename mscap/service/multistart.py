@@ -9,8 +9,11 @@ and only the master writes, flushing after every run, so a killed job loses at m
 runs in flight. With one rank (no ``mpirun``) the master runs every start itself.
 
 A start's result depends only on the scene and its (k, seed, init): never on the rank,
-the number of ranks or the order in which runs finish. A start that raises is stored as
-failed with its error text; the others go on. SIGTERM (what SLURM sends at the time
+the number of ranks or the order in which runs finish — unless the scene prunes
+(``[multistart] prune_first_step``, :mod:`mscap.service.pruning`): then each start asks the
+master at its rungs whether it is still among the best of its k, and a dominated one
+stops and is stored as pruned. A start that raises is stored as failed with its error
+text; the others go on. SIGTERM (what SLURM sends at the time
 limit) and Ctrl-C stop the master from handing out more work; it records what finished,
 writes the selection and aborts the workers still busy.
 """
@@ -27,6 +30,7 @@ from typing import Callable
 from mscap.service.accuracy import estimate_error
 from mscap.design.readback import ReconstructionBound
 from mscap.service import farm
+from mscap.service.pruning import PruneRule, Rungs, Verdict, rung_values
 from mscap.service.selection import StartConfig, configurations, select
 from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
     write_selection
@@ -35,13 +39,16 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["run_start", "run_multistart"]
+__all__ = ["run_start", "run_multistart", "stored_rungs"]
 
 log = logging.getLogger(__name__)
 
-def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None):
+def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None,
+              ask: Callable[[tuple], Verdict] | None = None):
     """Run one start and return its :class:`~mscap.service.store.RunRecord` (failed, with the
-    error text, if anything in it raises)."""
+    error text, if anything in it raises). With a pruning rule in the scene, ``ask`` gets
+    ``(k, id, step, J)`` at each rung and answers with a
+    :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned."""
     from mscap.design.pipeline import build_design
     from mscap.geometry.initial import initial_layout
     from mscap.design.optimizer import optimize
@@ -51,9 +58,20 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         layout = initial_layout(scene, config.k, config.seed, config.init)
         design = build_design(replace(scene, layout=layout))
         scene = design.scene  # its design poses (mscap.design.readback.design_scene)
-        result = optimize(design, max_iterations=max_iterations)
+        rule, verdicts = PruneRule.from_settings(scene.multistart), []
+
+        def checkpoint(step: int, J: float) -> bool:
+            if not rule.is_rung(step):
+                return True
+            verdicts.append(ask((config.k, config.id, step, float(J))))
+            return verdicts[-1].keep
+
+        result = optimize(design, max_iterations=max_iterations,
+                          checkpoint=checkpoint if ask is not None and rule.enabled else None)
         record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
                                     time.perf_counter() - start, rank)
+        if result.reason == "pruned":
+            record = replace(record, status="pruned", reason=verdicts[-1].reason(rule.eta))
         if scene.design_family is not None:
             bound = ReconstructionBound(scene.design_family, scene.optimizer.tau_mm)
             record = replace(record, bound_mm=bound.value(record.final_capacitance_pF),
@@ -64,7 +82,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
         return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
                              time.perf_counter() - start, rank)
-    if not scene.multistart.error_estimate:
+    if not scene.multistart.error_estimate or record.pruned:
         return record
     try:
         check = estimate_error(scene, final, record.final_capacitance_pF)
@@ -109,7 +127,7 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
         return _master(scene, path, comm.Get_size(), force, retry_failed, select_configs, execute, stop,
                        progress or (lambda m: None))
 
-    return farm.run(comm, lambda: (lambda config: run_start(scene, config, rank, max_iterations)), master,
+    return farm.run(comm, lambda ask: (lambda config: run_start(scene, config, rank, max_iterations, ask)), master,
                     "stopped: the finished runs are stored; rerun the same command to complete the rest",
                     progress or (lambda m: None))
 
@@ -128,6 +146,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         total, started = len(todo), time.perf_counter()
         say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
             f"worker{'s' if size > 2 else ''}")
+        rungs = stored_rungs(store, PruneRule.from_settings(scene.multistart))
 
         def record(rec) -> None:
             nonlocal done, failed
@@ -144,7 +163,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
                 f"{total - done} left, ETA {eta:.0f} s")
 
-        execute(todo, record)
+        execute(todo, record, lambda question: rungs.decide(question[0], question[2], question[3]))
     finally:
         selection = select(run_summaries(store), scene.multistart.plateau_tol,
                            range(scene.multistart.k_min, scene.multistart.k_max + 1))
@@ -152,3 +171,16 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         store.close()
     return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested}
 
+
+def stored_rungs(store, rule: PruneRule) -> Rungs:
+    """The master's rung table from the runs a file already holds (a resumed job prunes
+    against every start of earlier sessions)."""
+    rungs = Rungs(rule)
+    if not rule.enabled:
+        return rungs
+    for rid in finished_ids(store, failed=False):
+        run = store["runs"][rid]
+        history = run["history"]
+        rungs.add(int(run.attrs["k"]), rung_values(rule, history["iteration"][()], history["J"][()],
+                                                   history["event"].asstr()[()]))
+    return rungs

@@ -29,7 +29,7 @@ def _finite_or_none(x: float):
 def summary_json(selection, errors: dict | None = None) -> dict:
     """The ``--json`` document of a ``Selection``; ``errors`` maps run ids to their
     finer-mesh error estimates."""
-    return {"per_k": [{"k": s.k, "runs_ok": s.runs_ok, "runs_failed": s.runs_failed,
+    return {"per_k": [{"k": s.k, "runs_ok": s.runs_ok, "runs_pruned": s.runs_pruned, "runs_failed": s.runs_failed,
                        "best_metric": s.best_metric, "best_run": s.best_run, "wall_s": s.wall_s,
                        "best_error_estimate": _finite_or_none(_error(errors, s.best_run)),
                        "best_bound_mm": s.best_bound_mm}
@@ -49,7 +49,8 @@ def table(selection, title: str = "", errors: dict | None = None) -> str:
     error estimate, ``time`` the summed wall time of the k's runs."""
     lines = [title] if title else []
     bound = selection.by_bound  # runs designed for read-back: best = smallest bound
-    lines.append(f"{'':1} {'k':>3} {'ok':>4} {'failed':>6} "
+    pruned = any(s.runs_pruned for s in selection.per_k)  # a column only when a rule pruned
+    lines.append(f"{'':1} {'k':>3} {'ok':>4} " + (f"{'pruned':>6} " if pruned else "") + f"{'failed':>6} "
                  + (f"{'best bound (mm)':>16} {'min L1 (pF)':>12}" if bound else f"{'best min L1 (pF)':>17}")
                  + f" {'best run':<20} {'error':>8} {'time (s)':>9}")
     for s in selection.per_k:
@@ -57,7 +58,8 @@ def table(selection, title: str = "", errors: dict | None = None) -> str:
         metric = "-" if s.best_metric is None else f"{s.best_metric:.6g}"
         score = (f"{'-' if s.best_bound_mm is None else format(s.best_bound_mm, '.4g'):>16} {metric:>12}"
                  if bound else f"{metric:>17}")
-        lines.append(f"{mark} {s.k:>3} {s.runs_ok:>4} {s.runs_failed:>6} {score} "
+        lines.append(f"{mark} {s.k:>3} {s.runs_ok:>4} " + (f"{s.runs_pruned:>6} " if pruned else "")
+                     + f"{s.runs_failed:>6} {score} "
                      f"{s.best_run or '-':<20} {_percent(_error(errors, s.best_run)):>8} {s.wall_s:>9.1f}")
     if selection.chosen_k is None:
         lines.append("no successful run: no k chosen")

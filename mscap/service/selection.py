@@ -72,7 +72,8 @@ def configurations(scene: Scene) -> list[StartConfig]:
 @dataclass(frozen=True)
 class RunSummary:
     """What selection needs of one stored run; ``metric`` (pF) is the final min pairwise
-    L1 distance, NaN when the run failed."""
+    L1 distance, NaN when the run failed. A pruned run is ``ok`` (it has a design) and
+    ``pruned``."""
 
     id: str
     k: int
@@ -80,12 +81,13 @@ class RunSummary:
     metric: float
     wall_s: float
     bound_mm: float = math.nan
+    pruned: bool = False
 
 
 @dataclass(frozen=True)
 class KSummary:
-    """Runs of one k: counts, the best successful run (``None`` if none) and the summed
-    wall time (s)."""
+    """Runs of one k: counts (``runs_ok`` includes the ``runs_pruned``), the best successful
+    run (``None`` if none) and the summed wall time (s)."""
 
     k: int
     runs_ok: int
@@ -94,6 +96,7 @@ class KSummary:
     best_run: str | None
     wall_s: float
     best_bound_mm: float | None = None
+    runs_pruned: int = 0
 
 
 @dataclass(frozen=True)
@@ -128,7 +131,8 @@ def choose_k(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) ->
 
 
 def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[int] = ()) -> Selection:
-    """Best run per k (largest metric; ties go to the smallest id) and the chosen k.
+    """Best run per k (largest metric among the finished runs, pruned ones left out; ties go
+    to the smallest id) and the chosen k.
 
     When every successful run carries a finite read-back bound (design poses from the
     calibration family, :mod:`mscap.design.readback`), the best run per k is the one with the
@@ -138,7 +142,9 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
     """
     runs = list(runs)
     ks = sorted(set(k_values) | {r.k for r in runs})
-    good = [r for r in runs if r.ok and math.isfinite(r.metric)]
+    # A pruned run has a design but was stopped as dominated, unfinished and unchecked:
+    # it never is the best of its k.
+    good = [r for r in runs if r.ok and not r.pruned and math.isfinite(r.metric)]
     by_bound = bool(good) and all(math.isfinite(r.bound_mm) and r.bound_mm > 0 for r in good)
     score = (lambda r: 1.0 / r.bound_mm) if by_bound else (lambda r: r.metric)
     per_k = []
@@ -146,11 +152,13 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
         mine = [r for r in runs if r.k == k]
         ok = [r for r in good if r.k == k]
         best = min(ok, key=lambda r: (-score(r), r.id)) if ok else None
-        per_k.append(KSummary(k=k, runs_ok=len(ok), runs_failed=len(mine) - len(ok),
+        done = sum(r.ok for r in mine)
+        per_k.append(KSummary(k=k, runs_ok=done, runs_failed=len(mine) - done,
                               best_metric=None if best is None else best.metric,
                               best_run=None if best is None else best.id,
                               wall_s=float(sum(r.wall_s for r in mine)),
-                              best_bound_mm=None if best is None or not by_bound else best.bound_mm))
+                              best_bound_mm=None if best is None or not by_bound else best.bound_mm,
+                              runs_pruned=sum(r.pruned for r in mine)))
     best_of = {s.k: next(r for r in good if r.id == s.best_run) for s in per_k if s.best_run is not None}
     chosen = choose_k(list(best_of), [score(r) for r in best_of.values()], plateau_tol)
     chosen_run = next((s.best_run for s in per_k if s.k == chosen), None)

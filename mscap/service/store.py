@@ -65,9 +65,13 @@ RUN_ATTRS = {
     "k": ("int", "number of capacitors"),
     "seed": ("int", "seed of the initial layout"),
     "init": ("str", '"lloyd" or "random" (or "scene")'),
-    "status": ("str", '"ok" or "failed"'),
+    "status": ("str", '"ok", "pruned" (stopped at a rung as dominated within its k, mscap.service.pruning; '
+                      'its design and history up to there are stored; it counts as finished, not failed, and is '
+                      'never the best run of its k) '
+                      'or "failed"'),
     "error": ("str", 'error text of a failed run ("" if ok)'),
-    "reason": ("str", 'why the optimiser stopped ("" if failed)'),
+    "reason": ("str", 'why the optimiser stopped ("" if failed; for a pruned run the rule\'s numbers: step, J, '
+                      'threshold, peers, eta)'),
     "wall_s": ("float", "wall time of the run on its worker (s)"),
     "iterations": ("int", "accepted optimiser steps (0 if failed)"),
     "rank": ("int", "MPI rank of the worker that ran it (0 without MPI)"),
@@ -102,7 +106,7 @@ HISTORY_COLUMNS = {name: ("str" if name == "event" else
 #: Items of ``/selection`` (rewritten after every run): datasets are per k, ascending.
 SELECTION_ITEMS = {
     "k": ("dataset int64 (n_k,)", "k values"),
-    "runs_ok": ("dataset int64 (n_k,)", "successful runs per k"),
+    "runs_ok": ("dataset int64 (n_k,)", "runs per k with a design: finished or pruned"),
     "runs_failed": ("dataset int64 (n_k,)", "failed runs per k"),
     "best_metric_pF": ("dataset float64 (n_k,)", "best run's metric per k (NaN if none succeeded)"),
     "best_bound_mm": ("dataset float64 (n_k,)", "best run's read-back bound per k (NaN without a design family)"),
@@ -171,7 +175,12 @@ class RunRecord:
 
     @property
     def ok(self) -> bool:
-        return self.status == "ok"
+        """Did the run produce a design (finished or pruned)?"""
+        return self.status in ("ok", "pruned")
+
+    @property
+    def pruned(self) -> bool:
+        return self.status == "pruned"
 
     @property
     def metric(self) -> float:
@@ -331,7 +340,7 @@ def finished_ids(store: h5py.File, failed: bool = True) -> set[str]:
     """Ids of the completely written runs: the ones a resume skips. ``failed=False``
     leaves out the failed ones (``mscap run --retry-failed`` runs them again)."""
     return {name for name in store["runs"] if not name.startswith(TEMP_PREFIX)
-            and (failed or store["runs"][name].attrs.get("status") == "ok")}
+            and (failed or store["runs"][name].attrs.get("status") != "failed")}
 
 
 def _ragged(outlines) -> tuple[np.ndarray, np.ndarray]:
@@ -422,8 +431,9 @@ def run_summaries(store: h5py.File) -> list[RunSummary]:
     out = []
     for rid in sorted(finished_ids(store)):
         a = store["runs"][rid].attrs
-        out.append(RunSummary(id=rid, k=int(a["k"]), ok=a["status"] == "ok", metric=float(a["metric_pF"]),
-                              wall_s=float(a["wall_s"]), bound_mm=float(a.get("bound_mm", math.nan))))
+        out.append(RunSummary(id=rid, k=int(a["k"]), ok=a["status"] != "failed", metric=float(a["metric_pF"]),
+                              wall_s=float(a["wall_s"]), bound_mm=float(a.get("bound_mm", math.nan)),
+                              pruned=a["status"] == "pruned"))
     return out
 
 

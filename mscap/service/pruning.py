@@ -1,0 +1,125 @@
+"""Pruning dominated starts: asynchronous successive halving within each k.
+
+A multi-start spends most of its time on starts that end far below the best start of
+their k. With ``[multistart] prune_first_step = s`` and ``prune_eta = η``, every start
+stops at the *rungs* s, sη, sη², … accepted optimiser steps and asks the master. The
+master keeps, per k and rung, the J of every start that reached it (those of earlier
+sessions are read back from the stored histories). A start continues while its J is among
+the best ⌊n/η⌋ of the n starts of its k that reached that rung, itself included.
+While fewer than η starts have reached the rung, every start continues. This is the
+promotion rule of asynchronous successive halving (ASHA; Li et al., MLSys 2020), applied
+to J, the objective every start of a k minimises.
+
+A pruned start is stored with status ``"pruned"``. The record keeps its history up to
+that point, its design at that point, and the rule's numbers in ``reason``. Such a run
+is finished: a rerun does not repeat it, and it is never counted as failed. It is never
+the best run of its k either (it is unfinished, and its finer-mesh check is skipped). Pruning makes the set of finished runs depend on the order in which
+starts reach their rungs, so with pruning a run no longer depends on (k, seed, init)
+alone. Each pruned run stores the J, the threshold and the number of peers that decided it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["PruneRule", "Verdict", "Rungs", "rung_values"]
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The master's answer at a rung: ``keep`` going or stop; the start's ``J``, the
+    ``threshold`` it had to reach (``inf`` while too few peers) and ``peers``, the number
+    of starts of its k at that rung, itself included."""
+
+    keep: bool
+    k: int
+    step: int
+    J: float
+    threshold: float
+    peers: int
+
+    def reason(self, eta: int) -> str:
+        """The stored ``reason`` of a pruned run."""
+        return (f"pruned at step {self.step}: J = {self.J:.6g} above {self.threshold:.6g}, the best "
+                f"{max(self.peers // eta, 1)} of {self.peers} starts of k = {self.k} at that step (eta = {eta})")
+
+
+@dataclass(frozen=True)
+class PruneRule:
+    """Rungs at ``first_step · eta**i`` accepted steps (``first_step = 0``: never prune);
+    keep the best ``1/eta`` at each."""
+
+    first_step: int = 0
+    eta: int = 3
+
+    @classmethod
+    def from_settings(cls, multistart) -> "PruneRule":
+        return cls(multistart.prune_first_step, multistart.prune_eta)
+
+    @property
+    def enabled(self) -> bool:
+        return self.first_step > 0
+
+    def is_rung(self, step: int) -> bool:
+        """Is ``step`` (accepted steps so far) a rung?"""
+        if not self.enabled or step < self.first_step or step % self.first_step:
+            return False
+        ratio = step // self.first_step
+        while ratio % self.eta == 0:
+            ratio //= self.eta
+        return ratio == 1
+
+    def rungs(self, max_step: int) -> list[int]:
+        """The rungs up to ``max_step``."""
+        out, step = [], self.first_step
+        while self.enabled and step <= max_step:
+            out.append(step)
+            step *= self.eta
+        return out
+
+    def verdict(self, k: int, step: int, J: float, peers: Sequence[float]) -> Verdict:
+        """Keep ``J`` if it is among the best ⌊n/η⌋ of ``peers + [J]`` (n of them); keep
+        every start while n < η."""
+        values = np.sort(np.append(np.asarray(peers, dtype=float), J))
+        n = len(values)
+        if n < self.eta:
+            return Verdict(True, k, step, float(J), math.inf, n)
+        threshold = float(values[n // self.eta - 1])
+        return Verdict(bool(J <= threshold), k, step, float(J), threshold, n)
+
+
+def rung_values(rule: PruneRule, iteration: np.ndarray, J: np.ndarray, event: np.ndarray) -> dict[int, float]:
+    """J at each rung a stored history reached: the row of the accepted step (event
+    ``"step"``) whose ``iteration`` is the rung."""
+    iteration, J, event = np.asarray(iteration), np.asarray(J, dtype=float), np.asarray(event).astype(str)
+    out = {}
+    for step in rule.rungs(int(iteration.max()) if len(iteration) else 0):
+        rows = np.flatnonzero((iteration == step) & (event == "step"))
+        if len(rows):
+            out[step] = float(J[rows[0]])
+    return out
+
+
+class Rungs:
+    """The master's table: per (k, rung) the J of every start that reached it."""
+
+    def __init__(self, rule: PruneRule):
+        self.rule = rule
+        self.values: dict[tuple[int, int], list[float]] = defaultdict(list)
+
+    def add(self, k: int, values: dict[int, float]) -> None:
+        """Add a finished run's rung values (e.g. from :func:`rung_values`)."""
+        for step, J in values.items():
+            self.values[(k, step)].append(J)
+
+    def decide(self, k: int, step: int, J: float) -> Verdict:
+        """The verdict for a start of ``k`` reaching rung ``step`` with ``J``; its J joins
+        the table whatever the verdict."""
+        verdict = self.rule.verdict(k, step, J, self.values[(k, step)])
+        self.values[(k, step)].append(float(J))
+        return verdict

@@ -1,0 +1,168 @@
+"""Pruning dominated starts (asynchronous successive halving): the rule on closed numbers,
+the optimiser's checkpoint, and ``mscap run --prune`` replayed run by run from the file."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from mscap.scene import load_scene
+from mscap.errors import SceneError
+from mscap.scene.loader import with_overrides
+from mscap.service.pruning import PruneRule, Rungs, rung_values
+from mscap.service.store import finished_ids, read_run, read_store
+from tests.conftest import to_toml
+from tests.service.test_multistart import mscap_run, needs_mpirun, tiny_scene
+
+
+# ---------------------------------------------------------------- the rule
+def test_rungs_are_first_step_times_powers_of_eta():
+    rule = PruneRule(first_step=2, eta=3)
+    assert rule.rungs(60) == [2, 6, 18, 54]
+    assert [s for s in range(1, 60) if rule.is_rung(s)] == [2, 6, 18, 54]
+    assert not PruneRule(0, 3).enabled and PruneRule(0, 3).rungs(100) == []
+    assert not any(PruneRule(0, 3).is_rung(s) for s in range(10))
+
+
+def test_verdict_keeps_the_best_third():
+    rule = PruneRule(first_step=1, eta=3)
+    # Fewer than eta starts at the rung: everyone goes on, with no threshold.
+    first = rule.verdict(2, 1, 5.0, [])
+    assert first.keep and first.threshold == math.inf and first.peers == 1
+    assert rule.verdict(2, 1, 9.0, [5.0]).keep
+    # n = 3: keep the best 1; n = 6: the best 2 (J is minimised).
+    v = rule.verdict(2, 1, 4.0, [5.0, 3.0])
+    assert not v.keep and v.threshold == 3.0 and v.peers == 3
+    assert rule.verdict(2, 1, 2.0, [5.0, 3.0]).keep
+    v = rule.verdict(3, 3, 1.5, [1.0, 2.0, 3.0, 4.0, 5.0])
+    assert v.keep and v.threshold == 1.5 and v.peers == 6
+    v = rule.verdict(3, 3, 2.5, [1.0, 2.0, 3.0, 4.0, 5.0])
+    assert not v.keep and v.threshold == 2.0
+    assert v.reason(3) == "pruned at step 3: J = 2.5 above 2, the best 2 of 6 starts of k = 3 at that step (eta = 3)"
+
+
+def test_the_table_sees_every_start_per_k_and_rung():
+    rungs = Rungs(PruneRule(first_step=1, eta=2))
+    assert rungs.decide(2, 1, 1.0).keep and not rungs.decide(2, 1, 2.0).keep
+    assert rungs.decide(3, 1, 2.0).keep  # another k: its own table
+    assert rungs.values[(2, 1)] == [1.0, 2.0]
+    rungs.add(2, {1: 0.5, 2: 0.4})
+    assert not rungs.decide(2, 1, 1.5).keep  # best 2 of 4 are 0.5 and 1.0 now
+
+
+def test_rung_values_read_the_accepted_step_of_each_rung():
+    rule = PruneRule(first_step=1, eta=2)
+    iteration = np.array([0, 1, 2, 2, 3, 4])
+    J = np.array([9.0, 8.0, 7.0, 6.5, 6.0, 5.0])
+    event = np.array(["start", "step", "step", "remesh", "step", "step"])
+    assert rung_values(rule, iteration, J, event) == {1: 8.0, 2: 7.0, 4: 5.0}
+
+
+def test_settings_and_overrides_are_checked(small_scene_dict, write_scene):
+    small_scene_dict["multistart"] = {"prune_first_step": 2, "prune_eta": 1}
+    with pytest.raises(SceneError, match="multistart.prune_eta: must be at least 2"):
+        load_scene(write_scene(small_scene_dict))
+    small_scene_dict["multistart"] = {}
+    scene = load_scene(write_scene(small_scene_dict))
+    assert scene.multistart.prune_first_step == 0  # off unless asked for
+    changed = with_overrides(scene, starts_per_k=8, prune="5:2")
+    assert (changed.multistart.starts_per_k, changed.multistart.prune_first_step,
+            changed.multistart.prune_eta) == (8, 5, 2)
+    with pytest.raises(SceneError, match="--prune expects STEP or STEP:ETA"):
+        with_overrides(scene, prune="five")
+    with pytest.raises(SceneError, match="multistart.prune_eta"):
+        with_overrides(scene, prune="3:1")
+
+
+# ---------------------------------------------------------------- the optimiser
+def test_a_checkpoint_stops_the_optimiser_as_pruned(tmp_path):
+    from mscap.design.optimizer import optimize
+    from mscap.design.pipeline import build_design
+
+    path = tmp_path / "tiny.toml"
+    path.write_text(to_toml(tiny_scene()))
+    seen = []
+
+    def checkpoint(step, J):
+        seen.append((step, J))
+        return step < 2
+
+    result = optimize(build_design(load_scene(path)), max_iterations=5, checkpoint=checkpoint)
+    assert result.reason == "pruned" and result.iterations == 2
+    assert [s for s, _ in seen] == [1, 2]
+    assert result.history[-1].event == "pruned" and result.history[-1].J == seen[-1][1]
+
+
+# ---------------------------------------------------------------- the service
+def replay(store, rule: PruneRule, order: list[str]) -> dict[str, bool]:
+    """Every start's verdicts recomputed from the stored histories, in the order the
+    starts ran: True where it should have been pruned."""
+    rungs, pruned = Rungs(rule), {}
+    for rid in order:
+        run = store["runs"][rid]
+        h = run["history"]
+        values = rung_values(rule, h["iteration"][()], h["J"][()], h["event"].asstr()[()])
+        pruned[rid] = False
+        for step in sorted(values):
+            if not rungs.decide(int(run.attrs["k"]), step, values[step]).keep:
+                pruned[rid] = True
+                break
+    return pruned
+
+
+def test_one_rank_prunes_exactly_by_the_rule(tmp_path, capsys):
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(to_toml(tiny_scene()))
+    out = tmp_path / "pruned.h5"
+    done = mscap_run(1, scene, out, "--k-max", "2", "--starts-per-k", "5", "--prune", "1:2")
+    assert done.returncode == 0, done.stderr
+    store = read_store(out)
+    ids = sorted(finished_ids(store), key=lambda rid: int(rid.split("_s")[1].split("_")[0]))
+    assert len(ids) == 5
+    records = {rid: read_run(store, rid) for rid in ids}
+    status = {rid: r.status for rid, r in records.items()}
+    # One rank runs the starts in index order: the replay gives the same verdicts.
+    expected = replay(store, PruneRule(1, 2), ids)
+    assert {rid: s == "pruned" for rid, s in status.items()} == expected
+    assert status[ids[0]] == "ok"  # alone at its rungs
+    for r in records.values():
+        if r.pruned:
+            assert r.reason.startswith(f"pruned at step {r.iterations}: J = ")
+            assert r.history["event"][-1] == "pruned" and r.ok and math.isfinite(r.metric)
+            assert math.isnan(r.error_estimate)  # no finer-mesh check for a pruned start
+        else:
+            assert r.reason != "pruned" and math.isfinite(r.error_estimate)
+    store.close()
+    # A rerun finds nothing to do; --retry-failed does not count pruned starts as failed.
+    again = mscap_run(1, scene, out, "--k-max", "2", "--starts-per-k", "5", "--prune", "1:2", "--retry-failed")
+    assert again.returncode == 0 and "5 runs already stored, 0 to do" in again.stderr
+    from mscap.cli import main
+
+    assert main(["inspect", str(out), "--json"]) == 0
+    row = json.loads(capsys.readouterr().out)["per_k"][0]
+    assert row["runs_ok"] == 5 and row["runs_failed"] == 0
+    assert row["runs_pruned"] == sum(expected.values()) >= 1
+    assert status[row["best_run"]] == "ok"  # a pruned start is never the best of its k
+
+
+@needs_mpirun
+def test_three_ranks_ask_the_master_at_their_rungs(tmp_path):
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(to_toml(tiny_scene()))
+    out = tmp_path / "pruned.h5"
+    done = mscap_run(3, scene, out, "--k-max", "2", "--starts-per-k", "4", "--prune", "1:2")
+    assert done.returncode == 0, done.stderr
+    store = read_store(out)
+    records = [read_run(store, rid) for rid in finished_ids(store)]
+    store.close()
+    assert len(records) == 4 and {r.status for r in records} <= {"ok", "pruned"}
+    assert any(not r.pruned for r in records)
+    for r in records:
+        if r.pruned:  # the stored numbers say why: J above the threshold of its peers
+            J, threshold = (float(x) for x in r.reason.split("J = ")[1].split(", the best")[0].split(" above "))
+            assert J > threshold and J == pytest.approx(r.history["J"][-1], rel=1e-5)
+    assert shutil.which("mpirun")
