@@ -98,11 +98,11 @@ class _LBFGS:
 
 def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = None,
              max_iterations: int | None = None, cascade_levels: int | None = None,
-             checkpoint: Callable[[int, float], bool] | None = None) -> OptimizeResult:
+             checkpoint: Callable[[Record], bool] | None = None) -> OptimizeResult:
     """Minimise J from ``q0`` (default 0) of ``design``; settings from the scene's
     ``[optimizer]`` (``max_iterations`` per level, ``cascade_levels`` refinements).
-    After every accepted step ``checkpoint(steps so far, J)`` may return ``False`` to stop
-    here (reason ``"pruned"``, :mod:`mscap.service.pruning`)."""
+    After every accepted step ``checkpoint(its history record)`` may return ``False`` to
+    stop here (reason ``"pruned"``, :mod:`mscap.service.pruning`)."""
     say = progress or (lambda message: None)
     settings = design.scene.optimizer
     max_iterations = settings.max_iterations if max_iterations is None else max_iterations
@@ -170,7 +170,7 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
                         step = alpha * float(np.linalg.norm(p, axis=1).max())
                         step_length = min(settings.max_step_mm, 2 * step if evaluations == 1 else step)
                         record("step", step, evaluations)
-                        if checkpoint is not None and not checkpoint(iteration, e.J):
+                        if checkpoint is not None and not checkpoint(history[-1]):
                             converged, reason = True, "pruned"
                         elif (change <= settings.relative_tolerance * max(abs(e.J), 1.0)
                                 or np.linalg.norm(g) <= settings.gradient_tolerance * level_gradient):

@@ -30,7 +30,7 @@ from typing import Callable
 from mscap.service.accuracy import estimate_error
 from mscap.design.readback import ReconstructionBound
 from mscap.service import farm
-from mscap.service.pruning import PruneRule, Rungs, Verdict, rung_values
+from mscap.service.pruning import PruneRule, Rungs, Verdict, rung_values, score, score_kind
 from mscap.service.selection import StartConfig, configurations, select
 from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
     write_selection
@@ -47,7 +47,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
               ask: Callable[[tuple], Verdict] | None = None):
     """Run one start and return its :class:`~mscap.service.store.RunRecord` (failed, with the
     error text, if anything in it raises). With a pruning rule in the scene, ``ask`` gets
-    ``(k, id, step, J)`` at each rung and answers with a
+    ``(k, id, step, score)`` at each rung (:func:`mscap.service.pruning.score`) and answers with a
     :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned."""
     from mscap.design.pipeline import build_design
     from mscap.geometry.initial import initial_layout
@@ -60,10 +60,13 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         scene = design.scene  # its design poses (mscap.design.readback.design_scene)
         rule, verdicts = PruneRule.from_settings(scene.multistart), []
 
-        def checkpoint(step: int, J: float) -> bool:
-            if not rule.is_rung(step):
+        kind = score_kind(scene)
+
+        def checkpoint(row) -> bool:
+            if not rule.is_rung(row.iteration):
                 return True
-            verdicts.append(ask((config.k, config.id, step, float(J))))
+            value = float(score(kind, row.J, row.d, row.min_l1_pF))
+            verdicts.append(ask((config.k, config.id, row.iteration, value)))
             return verdicts[-1].keep
 
         result = optimize(design, max_iterations=max_iterations,
@@ -146,7 +149,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         total, started = len(todo), time.perf_counter()
         say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
             f"worker{'s' if size > 2 else ''}")
-        rungs = stored_rungs(store, PruneRule.from_settings(scene.multistart))
+        rungs = stored_rungs(store, PruneRule.from_settings(scene.multistart), score_kind(scene))
 
         def record(rec) -> None:
             nonlocal done, failed
@@ -172,7 +175,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
     return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested}
 
 
-def stored_rungs(store, rule: PruneRule) -> Rungs:
+def stored_rungs(store, rule: PruneRule, kind: str) -> Rungs:
     """The master's rung table from the runs a file already holds (a resumed job prunes
     against every start of earlier sessions)."""
     rungs = Rungs(rule)
@@ -181,6 +184,7 @@ def stored_rungs(store, rule: PruneRule) -> Rungs:
     for rid in finished_ids(store, failed=False):
         run = store["runs"][rid]
         history = run["history"]
-        rungs.add(int(run.attrs["k"]), rung_values(rule, history["iteration"][()], history["J"][()],
+        values = score(kind, history["J"][()], history["d"][()], history["min_l1_pF"][()])
+        rungs.add(int(run.attrs["k"]), rung_values(rule, history["iteration"][()], values,
                                                    history["event"].asstr()[()]))
     return rungs

@@ -8,7 +8,10 @@ sessions are read back from the stored histories). A start continues while its J
 the best ⌊n/η⌋ of the n starts of its k that reached that rung, itself included.
 While fewer than η starts have reached the rung, every start continues. This is the
 promotion rule of asynchronous successive halving (ASHA; Li et al., MLSys 2020), applied
-to J, the objective every start of a k minimises.
+to the quantity the k selection ranks runs by (:func:`score`): the read-back bound when the
+scene designs for read-back, else the min pairwise L1 distance. Ranking by J instead
+pruned the eventual best start of k = 2 on poking_cross_quick: J adds the barrier and
+smoothing terms, and it softens the minimum (docs/performance.md §8).
 
 A pruned start is stored with status ``"pruned"``. The record keeps its history up to
 that point, its design at that point, and the rule's numbers in ``reason``. Such a run
@@ -27,14 +30,32 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["PruneRule", "Verdict", "Rungs", "rung_values"]
+__all__ = ["PruneRule", "Verdict", "Rungs", "rung_values", "score", "score_kind"]
+
+def score_kind(scene) -> str:
+    """The scene's score: the bound when it designs for it, else the min L1 distance on
+    listed poses, else J (design poses from the family compared in read-out noise)."""
+    if scene.optimizer.distance == "reconstruction":
+        return "bound"
+    return "min_l1" if scene.optimizer.design_poses == "listed" else "J"
+
+
+def score(kind: str, J, d, min_l1_pF):
+    """A start's score at a rung, lower is better, from its history values (scalars or
+    columns): the read-back bound (mm; −d when the objective is the bound), minus the min
+    pairwise L1 distance (pF), or J."""
+    if kind == "bound":
+        return -np.asarray(d, dtype=float)
+    if kind == "min_l1":
+        return -np.asarray(min_l1_pF, dtype=float)
+    return np.asarray(J, dtype=float)
 
 
 @dataclass(frozen=True)
 class Verdict:
-    """The master's answer at a rung: ``keep`` going or stop; the start's ``J``, the
-    ``threshold`` it had to reach (``inf`` while too few peers) and ``peers``, the number
-    of starts of its k at that rung, itself included."""
+    """The master's answer at a rung: ``keep`` going or stop; the start's score ``J``
+    (lower is better, :func:`score`), the ``threshold`` it had to reach (``inf`` while too
+    few peers) and ``peers``, the number of starts of its k at that rung, itself included."""
 
     keep: bool
     k: int
@@ -45,7 +66,7 @@ class Verdict:
 
     def reason(self, eta: int) -> str:
         """The stored ``reason`` of a pruned run."""
-        return (f"pruned at step {self.step}: J = {self.J:.6g} above {self.threshold:.6g}, the best "
+        return (f"pruned at step {self.step}: score {self.J:.6g} above {self.threshold:.6g}, the best "
                 f"{max(self.peers // eta, 1)} of {self.peers} starts of k = {self.k} at that step (eta = {eta})")
 
 
@@ -94,8 +115,9 @@ class PruneRule:
 
 
 def rung_values(rule: PruneRule, iteration: np.ndarray, J: np.ndarray, event: np.ndarray) -> dict[int, float]:
-    """J at each rung a stored history reached: the row of the accepted step (event
-    ``"step"``) whose ``iteration`` is the rung."""
+    """The score ``J`` (a history column, e.g. from :func:`score`) at each rung a stored
+    history reached: the row of the accepted step (event ``"step"``) whose ``iteration``
+    is the rung."""
     iteration, J, event = np.asarray(iteration), np.asarray(J, dtype=float), np.asarray(event).astype(str)
     out = {}
     for step in rule.rungs(int(iteration.max()) if len(iteration) else 0):

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 
 import numpy as np
 import pytest
@@ -13,7 +12,7 @@ import pytest
 from mscap.scene import load_scene
 from mscap.errors import SceneError
 from mscap.scene.loader import with_overrides
-from mscap.service.pruning import PruneRule, Rungs, rung_values
+from mscap.service.pruning import PruneRule, Rungs, rung_values, score, score_kind
 from mscap.service.store import finished_ids, read_run, read_store
 from tests.conftest import to_toml
 from tests.service.test_multistart import mscap_run, needs_mpirun, tiny_scene
@@ -42,7 +41,7 @@ def test_verdict_keeps_the_best_third():
     assert v.keep and v.threshold == 1.5 and v.peers == 6
     v = rule.verdict(3, 3, 2.5, [1.0, 2.0, 3.0, 4.0, 5.0])
     assert not v.keep and v.threshold == 2.0
-    assert v.reason(3) == "pruned at step 3: J = 2.5 above 2, the best 2 of 6 starts of k = 3 at that step (eta = 3)"
+    assert v.reason(3) == "pruned at step 3: score 2.5 above 2, the best 2 of 6 starts of k = 3 at that step (eta = 3)"
 
 
 def test_the_table_sees_every_start_per_k_and_rung():
@@ -60,6 +59,14 @@ def test_rung_values_read_the_accepted_step_of_each_rung():
     J = np.array([9.0, 8.0, 7.0, 6.5, 6.0, 5.0])
     event = np.array(["start", "step", "step", "remesh", "step", "step"])
     assert rung_values(rule, iteration, J, event) == {1: 8.0, 2: 7.0, 4: 5.0}
+
+
+def test_the_score_is_what_selection_ranks_by():
+    assert score_kind(load_scene("jobs/wrist_quick.toml")) == "bound"  # designs for read-back
+    assert score_kind(load_scene("jobs/poking_cross_quick.toml")) == "min_l1"
+    np.testing.assert_array_equal(score("bound", [1.0], [-0.3], [7.0]), [0.3])  # d = −bound
+    np.testing.assert_array_equal(score("min_l1", [1.0], [-0.3], [7.0]), [-7.0])
+    np.testing.assert_array_equal(score("J", [1.0], [-0.3], [7.0]), [1.0])
 
 
 def test_settings_and_overrides_are_checked(small_scene_dict, write_scene):
@@ -87,9 +94,9 @@ def test_a_checkpoint_stops_the_optimiser_as_pruned(tmp_path):
     path.write_text(to_toml(tiny_scene()))
     seen = []
 
-    def checkpoint(step, J):
-        seen.append((step, J))
-        return step < 2
+    def checkpoint(row):
+        seen.append((row.iteration, row.J))
+        return row.iteration < 2
 
     result = optimize(build_design(load_scene(path)), max_iterations=5, checkpoint=checkpoint)
     assert result.reason == "pruned" and result.iterations == 2
@@ -105,7 +112,8 @@ def replay(store, rule: PruneRule, order: list[str]) -> dict[str, bool]:
     for rid in order:
         run = store["runs"][rid]
         h = run["history"]
-        values = rung_values(rule, h["iteration"][()], h["J"][()], h["event"].asstr()[()])
+        values = rung_values(rule, h["iteration"][()], score("min_l1", None, None, h["min_l1_pF"][()]),
+                             h["event"].asstr()[()])
         pruned[rid] = False
         for step in sorted(values):
             if not rungs.decide(int(run.attrs["k"]), step, values[step]).keep:
@@ -114,12 +122,22 @@ def replay(store, rule: PruneRule, order: list[str]) -> dict[str, bool]:
     return pruned
 
 
-def test_one_rank_prunes_exactly_by_the_rule(tmp_path, capsys):
+PRUNED_RUN = ("--k-max", "2", "--prune", "1:2")
+
+
+def pruned_run(tmp_path, ranks: int, starts: int):
+    """``mscap run`` of the tiny scene's k = 2 with ``starts`` starts, pruning from the
+    first step with η = 2; returns the scene file and the results file."""
     scene = tmp_path / "tiny.toml"
     scene.write_text(to_toml(tiny_scene()))
     out = tmp_path / "pruned.h5"
-    done = mscap_run(1, scene, out, "--k-max", "2", "--starts-per-k", "5", "--prune", "1:2")
+    done = mscap_run(ranks, scene, out, *PRUNED_RUN, "--starts-per-k", str(starts))
     assert done.returncode == 0, done.stderr
+    return scene, out
+
+
+def test_one_rank_prunes_exactly_by_the_rule(tmp_path, capsys):
+    scene, out = pruned_run(tmp_path, 1, 5)
     store = read_store(out)
     ids = sorted(finished_ids(store), key=lambda rid: int(rid.split("_s")[1].split("_")[0]))
     assert len(ids) == 5
@@ -131,14 +149,14 @@ def test_one_rank_prunes_exactly_by_the_rule(tmp_path, capsys):
     assert status[ids[0]] == "ok"  # alone at its rungs
     for r in records.values():
         if r.pruned:
-            assert r.reason.startswith(f"pruned at step {r.iterations}: J = ")
+            assert r.reason.startswith(f"pruned at step {r.iterations}: score -")  # minus the min L1
             assert r.history["event"][-1] == "pruned" and r.ok and math.isfinite(r.metric)
             assert math.isnan(r.error_estimate)  # no finer-mesh check for a pruned start
         else:
             assert r.reason != "pruned" and math.isfinite(r.error_estimate)
     store.close()
     # A rerun finds nothing to do; --retry-failed does not count pruned starts as failed.
-    again = mscap_run(1, scene, out, "--k-max", "2", "--starts-per-k", "5", "--prune", "1:2", "--retry-failed")
+    again = mscap_run(1, scene, out, *PRUNED_RUN, "--starts-per-k", "5", "--retry-failed")
     assert again.returncode == 0 and "5 runs already stored, 0 to do" in again.stderr
     from mscap.cli import main
 
@@ -151,11 +169,7 @@ def test_one_rank_prunes_exactly_by_the_rule(tmp_path, capsys):
 
 @needs_mpirun
 def test_three_ranks_ask_the_master_at_their_rungs(tmp_path):
-    scene = tmp_path / "tiny.toml"
-    scene.write_text(to_toml(tiny_scene()))
-    out = tmp_path / "pruned.h5"
-    done = mscap_run(3, scene, out, "--k-max", "2", "--starts-per-k", "4", "--prune", "1:2")
-    assert done.returncode == 0, done.stderr
+    _, out = pruned_run(tmp_path, 3, 4)
     store = read_store(out)
     records = [read_run(store, rid) for rid in finished_ids(store)]
     store.close()
@@ -163,6 +177,5 @@ def test_three_ranks_ask_the_master_at_their_rungs(tmp_path):
     assert any(not r.pruned for r in records)
     for r in records:
         if r.pruned:  # the stored numbers say why: J above the threshold of its peers
-            J, threshold = (float(x) for x in r.reason.split("J = ")[1].split(", the best")[0].split(" above "))
-            assert J > threshold and J == pytest.approx(r.history["J"][-1], rel=1e-5)
-    assert shutil.which("mpirun")
+            value, threshold = (float(x) for x in r.reason.split("score ")[1].split(", the best")[0].split(" above "))
+            assert value > threshold and value == pytest.approx(-r.history["min_l1_pF"][-1], rel=1e-5)
