@@ -55,11 +55,12 @@ def main() -> None:
     parser.add_argument("--prune", default="5:3")
     parser.add_argument("--ranks", type=int, default=3)
     parser.add_argument("--outdir", default="out/prune")
+    parser.add_argument("--pruned-file", default="pruned.h5", help="name of the pruned run's file in OUTDIR")
     parser.add_argument("--read", action="store_true", help="only compare existing files")
     args = parser.parse_args()
     outdir = Path(args.outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    full, pruned = outdir / "full.h5", outdir / "pruned.h5"
+    full, pruned = outdir / "full.h5", outdir / args.pruned_file
     if not args.read:
         run(args.scene, full, args.ranks, "--starts-per-k", args.starts_per_k)
         run(args.scene, pruned, args.ranks, "--starts-per-k", args.starts_per_k, "--prune", args.prune)
@@ -67,7 +68,7 @@ def main() -> None:
     print("| | runs (pruned) | accepted steps | core-seconds | chosen k | " +
           " | ".join(f"best k = {k} (pF)" for k in sorted(a["per_k"])) + " |")
     print("|---|---|---|---|---|" + "---|" * len(a["per_k"]))
-    for name, s in (("unpruned", a), (f"--prune {args.prune}", b)):
+    for name, s in (("unpruned", a), (f"pruned ({pruned.name})", b)):
         cells = []
         for k in sorted(a["per_k"]):
             metric, err, _ = s["per_k"][k]
