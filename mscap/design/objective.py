@@ -42,18 +42,18 @@ vertex.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mscap.scene.settings import DISTANCES
-from mscap.fem.elastic.contact import barrier, barrier_derivatives
-from mscap.errors import GeometryError, MscapError
-from mscap.geometry.polygons import segment_projection
 from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, design_scene
 from mscap.design.terms import Sum, Term, Weighted, soft_min
+from mscap.errors import GeometryError, MscapError
+from mscap.fem.elastic.contact import barrier, barrier_derivatives
+from mscap.geometry.polygons import segment_projection
 from mscap.scene.calibration import NoiseModel
-from typing import TYPE_CHECKING
+from mscap.scene.settings import DISTANCES
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -285,25 +285,28 @@ class LayoutObjective:
         geometry = self.barrier_weight * self.barrier + self.smoothing_weight * self.smoothing
         return geometry if self.area is None else geometry + self.barrier_weight * self.area
 
-    def check_outlines(self, outlines) -> None:
-        """Raise :class:`GeometryError` where the barriers are infinite (outlines closer
-        than the minimum gap, plates over the area limit): before any simulation."""
+    def outline_terms(self, outlines, check: bool = False) -> tuple[float, float]:
+        """The unweighted outline terms ``(B + B_area, S)``. With ``check``, raise
+        :class:`GeometryError` where a barrier is infinite (outlines closer than the
+        minimum gap, plates over the area limit): a design evaluates this before any
+        simulation."""
         barrier = self.barrier.value(outlines)
-        if not np.isfinite(barrier):
+        if check and not np.isfinite(barrier):
             raise GeometryError(f"the outlines at this design violate the minimum gap (barrier {barrier})")
-        if self.area is not None and not np.isfinite(self.area.value(outlines)):
+        area = 0.0 if self.area is None else self.area.value(outlines)
+        if check and not np.isfinite(area):
             raise GeometryError("the outlines at this design reach [optimizer] max_plate_area_mm2")
+        return barrier + area, self.smoothing.value(outlines)
 
-    def parts(self, capacitance_pF: np.ndarray, outlines) -> ObjectiveParts:
-        """J and its parts at capacitances ``(n_poses, k)`` and outlines."""
+    def parts(self, capacitance_pF: np.ndarray, outline_terms: tuple[float, float]) -> ObjectiveParts:
+        """J and its parts at capacitances ``(n_poses, k)`` and :meth:`outline_terms`."""
         d = self.distance.value(capacitance_pF)
-        barrier = self.barrier.value(outlines) + (0.0 if self.area is None else self.area.value(outlines))
-        smoothing = self.smoothing.value(outlines)
+        barrier, smoothing = outline_terms
         J = -d + self.barrier_weight * barrier + self.smoothing_weight * smoothing
         return ObjectiveParts(float(J), float(d), float(barrier), float(smoothing))
 
     def value(self, capacitance_pF: np.ndarray, outlines) -> float:
-        return self.parts(capacitance_pF, outlines).J
+        return self.parts(capacitance_pF, self.outline_terms(outlines)).J
 
     def gradients(self, capacitance_pF: np.ndarray, outlines) -> tuple[np.ndarray, tuple]:
         """``(∂J/∂C (n_poses, k), ∂J/∂outline vertices (one (n_j, 2) per outline))``."""

@@ -33,17 +33,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mscap.fem.adjoint import moved, pose_rest_gradient
 from mscap.design.deformer import Deformer, build_deformer
-from mscap.errors import DesignError
-from mscap.design.objective import layout_objective
-from mscap.scene import Scene
-from mscap.scene.loader import check_designable
-from mscap.fem.petsc import LinearSolver, Operator
-from mscap.design.readback import design_scene
 from mscap.design.history import min_pairwise_l1
+from mscap.design.objective import LayoutObjective, layout_objective
+from mscap.design.readback import design_scene
+from mscap.errors import DesignError
+from mscap.fem.adjoint import moved, pose_rest_gradient
+from mscap.fem.petsc import LinearSolver, Operator
 from mscap.fem.simulate import Simulation, elastic_setup, simulate, solve_poses
 from mscap.mesh.transfer import p1_matrix
+from mscap.scene import Scene
+from mscap.scene.loader import check_designable
 
 __all__ = ["DesignError", "Design", "Evaluation", "build_design"]
 
@@ -95,13 +95,15 @@ class Evaluation:
 @dataclass(frozen=True, eq=False)
 class Design:
     """Scene, rest meshes and problems (``base``: a :class:`Simulation` without poses),
-    the deformer (weights on the electrostatic 2D mesh) and ``elastic_weights`` ``T2d W``
-    on the elastic mesh's 2D vertices (``None`` on a shared mesh)."""
+    the deformer (weights on the electrostatic 2D mesh), ``elastic_weights`` ``T2d W``
+    on the elastic mesh's 2D vertices (``None`` on a shared mesh) and the scene's
+    objective J (:func:`mscap.design.objective.layout_objective`, built once)."""
 
     scene: Scene
     base: Simulation
     deformer: Deformer
     elastic_weights: np.ndarray | None
+    objective: LayoutObjective
     #: Solvers reused by every evaluation (same patterns, so PETSc's symbolic
     #: factorisations are kept; a new KSP per evaluation also kept ~15 MB each alive).
     workspace: dict = field(default_factory=dict, repr=False)
@@ -133,9 +135,8 @@ class Design:
         (an :class:`Evaluation` of this design, or per-pose displacements)."""
         started = time.perf_counter()
         q = np.array(self.deformer._q(q))
-        objective = layout_objective(self.scene)
         outlines = self.deformer.outlines(q)
-        objective.check_outlines(outlines)
+        outline_terms = self.objective.outline_terms(outlines, check=True)
         sim = moved(self.base, *self.rest_points(q))
         starts = warm.displacements() if isinstance(warm, Evaluation) else warm
         solver, operator = self._solvers()
@@ -145,7 +146,7 @@ class Design:
                 raise DesignError(f"pose {result.name!r}: capacitances {result.capacitance_pF} are not finite")
         sim = replace(sim, poses=results)
         capacitance = sim.capacitance_pF
-        parts = objective.parts(capacitance, outlines)
+        parts = self.objective.parts(capacitance, outline_terms)
         if not np.isfinite(parts.J):
             raise DesignError(f"J = {parts.J} is not finite (d = {parts.d}, barrier = {parts.barrier}, "
                               f"smoothing = {parts.smoothing})")
@@ -159,7 +160,7 @@ class Design:
         if e.released:
             raise DesignError("this evaluation's factorisations were released; evaluate again")
         outlines = self.deformer.outlines(e.q)
-        dJ_dC, dJ_doutlines = layout_objective(self.scene).gradients(e.capacitance_pF, outlines)
+        dJ_dC, dJ_doutlines = self.objective.gradients(e.capacitance_pF, outlines)
         # Capacitance part: one elastic adjoint per pose, to both rest meshes.
         g_fine = np.zeros_like(e.sim.mesh.points)
         g_elastic = None if e.sim.elastic is None else np.zeros((e.sim.elastic.n_vertices, 3))
@@ -194,7 +195,8 @@ class Design:
         weights = None
         if base.elastic is not None and base.transfer is not None:
             weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
-        return Design(replace(self.scene, layout=deformer.layout(deformer.zeros())), base, deformer, weights)
+        return Design(replace(self.scene, layout=deformer.layout(deformer.zeros())), base, deformer, weights,
+                      self.objective)
 
 
 def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:
@@ -227,4 +229,4 @@ def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None 
     weights = None
     if base.elastic is not None and base.transfer is not None:
         weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
-    return Design(scene, base, deformer, weights)
+    return Design(scene, base, deformer, weights, layout_objective(scene))

@@ -25,7 +25,7 @@ import math
 import time
 import traceback
 from dataclasses import replace
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from mscap.service.accuracy import estimate_error
 from mscap.design.readback import ReconstructionBound
@@ -34,7 +34,6 @@ from mscap.service.pruning import PruneRule, Rungs, Verdict, rung_values, score,
 from mscap.service.selection import StartConfig, configurations, select
 from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
     write_selection
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -43,11 +42,12 @@ __all__ = ["run_start", "run_multistart", "stored_rungs"]
 
 log = logging.getLogger(__name__)
 
+
 def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None,
               ask: Callable[[tuple], Verdict] | None = None):
     """Run one start and return its :class:`~mscap.service.store.RunRecord` (failed, with the
     error text, if anything in it raises). With a pruning rule in the scene, ``ask`` gets
-    ``(k, id, step, score)`` at each rung (:func:`mscap.service.pruning.score`) and answers with a
+    ``(k, step, score)`` at each rung (:func:`mscap.service.pruning.score`) and answers with a
     :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned."""
     from mscap.design.pipeline import build_design
     from mscap.geometry.initial import initial_layout
@@ -58,15 +58,12 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         layout = initial_layout(scene, config.k, config.seed, config.init)
         design = build_design(replace(scene, layout=layout))
         scene = design.scene  # its design poses (mscap.design.readback.design_scene)
-        rule, verdicts = PruneRule.from_settings(scene.multistart), []
-
-        kind = score_kind(scene)
+        rule, kind, verdicts = PruneRule.from_settings(scene.multistart), score_kind(scene), []
 
         def checkpoint(row) -> bool:
             if not rule.is_rung(row.iteration):
                 return True
-            value = float(score(kind, row.J, row.d, row.min_l1_pF))
-            verdicts.append(ask((config.k, config.id, row.iteration, value)))
+            verdicts.append(ask((config.k, row.iteration, float(score(kind, row.J, row.d, row.min_l1_pF)))))
             return verdicts[-1].keep
 
         result = optimize(design, max_iterations=max_iterations,
@@ -166,7 +163,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
                 f"{total - done} left, ETA {eta:.0f} s")
 
-        execute(todo, record, lambda question: rungs.decide(question[0], question[2], question[3]))
+        execute(todo, record, lambda question: rungs.decide(*question))
     finally:
         selection = select(run_summaries(store), scene.multistart.plateau_tol,
                            range(scene.multistart.k_min, scene.multistart.k_max + 1))
