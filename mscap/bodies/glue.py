@@ -39,13 +39,13 @@ from typing import Any
 import meshio
 import numpy as np
 
-from mscap.scene._toml import Table
-from mscap.bodies.cloughtocher import CloughTocher, _cross
-from mscap.errors import GeometryError
 from mscap.bodies.basic import cylinder, dome
+from mscap.bodies.cloughtocher import CloughTocher, _cross
 from mscap.bodies.kinematics import ParameterError
 from mscap.bodies.registry import GENERATORS, generator_parameters, parameter_kind, register_generator
+from mscap.errors import GeometryError
 from mscap.geometry.polygons import point_segment_distance, points_in_polygon
+from mscap.scene._toml import Table
 
 __all__ = [
     "GENERATORS", "register_generator", "ParameterError", "cylinder", "dome",

@@ -32,17 +32,16 @@ import time
 import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import h5py
 import numpy as np
 
-from mscap.scene.calibration import CalibrationSettings, family_poses
-from mscap.errors import CalibrationError, MscapError
-from mscap.service import farm
-from mscap.geometry.layout import Layout
 from mscap.calibration.reconstruction import PoseErrors, fit, point_errors, score
-from typing import TYPE_CHECKING
+from mscap.errors import CalibrationError, MscapError
+from mscap.geometry.layout import Layout
+from mscap.scene.calibration import CalibrationSettings, family_poses
+from mscap.service import farm
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene

@@ -15,8 +15,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from mscap import __version__
-from mscap.errors import MscapError
 from mscap.cli import calibrate, capacitance, inspect, merge, mesh, optimize, plot, readout, run, simulate
+from mscap.errors import MscapError
 
 __all__ = ["main"]
 

@@ -40,12 +40,12 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from mscap.scene.settings import SKINNING_METHODS
 from mscap.errors import MeshError
 from mscap.geometry.layout import Layout
 from mscap.geometry.polygons import segment_projection
-from mscap.mesh.triangulate import TriMesh
 from mscap.mesh.transfer import p1_matrix
+from mscap.mesh.triangulate import TriMesh
+from mscap.scene.settings import SKINNING_METHODS
 
 __all__ = ["Deformer", "build_deformer", "skinning_weights", "outer_boundary_vertices",
            "outline_chains", "cotangent_stiffness", "METHODS"]

@@ -32,14 +32,14 @@ from typing import Callable
 import numpy as np
 
 from mscap.design.feasibility import feasible_step
+from mscap.design.history import Record
 from mscap.design.pipeline import Design, DesignError, Evaluation
 from mscap.design.remesh import min_angle, needs_remesh, remesh
+from mscap.errors import GeometryError, MeshError
 from mscap.fem.elastic.problem import ElasticError
 from mscap.fem.electrostatic import ElectrostaticError
-from mscap.errors import GeometryError, MeshError
-from mscap.geometry.layout import Layout, min_gap_mm
 from mscap.fem.petsc import LinearSolveError
-from mscap.design.history import Record
+from mscap.geometry.layout import Layout, min_gap_mm
 
 __all__ = ["OptimizeResult", "optimize"]
 

@@ -37,10 +37,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from mscap.design.terms import Term, soft_min
 from mscap.scene.calibration import NoiseModel, family_poses
 from mscap.scene.loader import check_optimizer, family_grid_counts
 from mscap.scene.settings import Scene
-from mscap.design.terms import Term, soft_min
 
 __all__ = ["DesignFamily", "design_family", "design_scene", "ProtocolDissimilarity",
            "ReconstructionBound", "reading_variance", "difference_variance", "grid_pose_name", "grid_derivatives"]

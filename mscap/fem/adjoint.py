@@ -39,26 +39,22 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import replace
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from mscap.fem import electrostatic
-
-from mscap.fem import elements as fem
-
+from mscap.errors import AdjointError
+from mscap.fem import electrostatic, elements as fem
 from mscap.fem.elastic import neohookean
 from mscap.fem.elastic.contact import Ball, barrier_derivatives
-from mscap.fem.elastic.problem import ElasticProblem, node_values, rest_geometry
-from mscap.errors import AdjointError
-from mscap.mesh.layered import LayeredMesh
 from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import ElasticState, Loading, NewtonSettings
+from mscap.fem.elastic.problem import ElasticProblem, node_values, rest_geometry
 from mscap.fem.petsc import LinearSolver
-from mscap.fem.simulate import solve_poses
-from mscap.scene.poses import PokePose, StretchPose
 from mscap.fem.profile import timed
-from typing import TYPE_CHECKING
+from mscap.fem.simulate import solve_poses
+from mscap.mesh.layered import LayeredMesh
+from mscap.scene.poses import PokePose, StretchPose
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene

@@ -118,8 +118,8 @@ class LinearSolver:
     def set_csr(self, matrix, spd: bool = False) -> None:
         """Factorise the scipy CSR ``matrix`` (symmetric; ``spd`` tells PETSc it is positive
         definite, as electrostatics are; elastic Hessians of compressed thin sheets can be
-        indefinite). While its pattern stays that of the previous call, the same PETSc matrix takes the new values and PETSc refactorises
-        numerically only, keeping the ordering and symbolic analysis (electrostatics on
+        indefinite). While its pattern stays that of the previous call, the same PETSc
+        matrix takes the new values and PETSc refactorises numerically only, keeping the ordering and symbolic analysis (electrostatics on
         359k tets: 0.18 → 0.13 s with CHOLMOD, 0.60 → 0.095 s with MUMPS)."""
         csr = matrix.tocsr()
         own = self._own

@@ -15,11 +15,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from mscap.fem import electrostatic
-from mscap.fem.elastic.problem import ElasticError, ElasticProblem, build_problem
-from mscap.mesh.layered import LayeredMesh, mesh_elastic, mesh_scene
 from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import ElasticState, NewtonSettings, solve_pose
+from mscap.fem.elastic.problem import ElasticError, ElasticProblem, build_problem
 from mscap.fem.petsc import LinearSolver, Operator
+from mscap.mesh.layered import LayeredMesh, mesh_elastic, mesh_scene
 from mscap.mesh.transfer import interpolation_matrix
 
 __all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibrium", "elastic_setup",

@@ -16,12 +16,13 @@ barrier starts at zero); the result always passes :func:`mscap.geometry.layout.c
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from mscap.geometry import polygons as geometry
 from mscap.errors import GeometryError
+from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import Layout, check_layout
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene

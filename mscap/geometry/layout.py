@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mscap.geometry import polygons as geometry
 from mscap.errors import GeometryError
+from mscap.geometry import polygons as geometry
 
 __all__ = ["Layout", "grid_layout", "check_layout", "min_gap_mm", "SHAPES"]
 

@@ -14,12 +14,12 @@ three tets below.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mscap.mesh.triangulate import TriMesh
 from mscap.fem.profile import timed
-from typing import TYPE_CHECKING
+from mscap.mesh.triangulate import TriMesh
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene

@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from mscap.fem import elements as fem
 from mscap.errors import MeshError
+from mscap.fem import elements as fem
 from mscap.mesh.locate import TOLERANCE, TriangleLocator
 from mscap.mesh.triangulate import TriMesh
 

@@ -25,8 +25,8 @@ from functools import cached_property
 
 import numpy as np
 
-from mscap.scene.calibration import NoiseModel
 from mscap.errors import ReadoutError
+from mscap.scene.calibration import NoiseModel
 
 __all__ = ["ReadoutError", "C_ON_PF", "C_OFF_PF", "MAX_ALL_LEADS", "MAX_DEFAULT_ALL_LEADS",
            "MAX_ENUMERATED_CANDIDATE_LEADS", "MAX_RANDOM_CANDIDATES", "CapacitorArray", "grid_array",

@@ -101,7 +101,8 @@ class ElasticSettings:
     ``mesh = "own"`` (default) solves on a mesh of its own (:func:`mscap.mesh.layered.mesh_elastic`):
     the same outlines, ``edge_length_mm`` (outlines: ``edge_length_outline_mm``, default
     half of it) and ``elements_through_thickness`` even slabs through the whole stack (0:
-    the electrostatic levels, one slab per layer times ``[mesh] elements_per_layer``). ``"shared"`` solves on the electrostatic mesh itself.
+    the electrostatic levels, one slab per layer times ``[mesh] elements_per_layer``).
+    ``"shared"`` solves on the electrostatic mesh itself.
     The defaults come from benchmarks/elastic_error_vs_time.py (docs/elastic.md)."""
 
     tolerance: float = 1e-8
@@ -132,8 +133,8 @@ class OptimizerSettings:
     plate area (0: none). A scene with a ``[calibration]`` that names no ``distance``
     gets ``"reconstruction"`` on ``"family"`` (:func:`_objective_defaults`).
     ``max_iterations``: accepted L-BFGS steps per cascade level; ``cascade_levels``:
-    doublings of the controls after the first level converges. ``control_spacing_mm``: arc length between control points on the
-    outlines; ``skinning``: ``"bbw"`` or ``"harmonic"`` weights. Convergence of a level:
+    doublings of the controls after the first level converges. ``control_spacing_mm``: arc
+    length between control points on the outlines; ``skinning``: ``"bbw"`` or ``"harmonic"`` weights. Convergence of a level:
     J falls by less than ``relative_tolerance`` · max(|J|, 1) in a step, or ‖dJ/dq‖ drops
     below ``gradient_tolerance`` times its value at the level's start. Steps:
     steepest-descent steps start at ``first_step_mm`` (largest control displacement) and

@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mscap.design.history import min_pairwise_l1
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene

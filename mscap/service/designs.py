@@ -18,13 +18,13 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
 
 from mscap.design.history import HISTORY_FIELDS
 from mscap.service.store import StoreError, read_run, read_store, store_selection
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene

@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 from mscap.scene.loader import check_multistart
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene

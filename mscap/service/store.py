@@ -16,19 +16,18 @@ import tomllib
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
 
 from mscap import __version__
-from mscap.service.accuracy import relative_difference
-from mscap.design.history import min_pairwise_l1
+from mscap.design.history import min_pairwise_l1, HISTORY_FIELDS
 from mscap.errors import StoreError
-from mscap.design.history import HISTORY_FIELDS
 from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
+from mscap.service.accuracy import relative_difference
 from mscap.service.selection import SELECTION_RULE_BOUND, RunSummary, Selection, select, SELECTION_RULE, run_id
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene

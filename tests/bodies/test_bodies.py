@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mscap.geometry import polygons as geometry
-from mscap.scene._toml import Table
+from mscap.bodies.basic import cylinder
+from mscap.bodies.glue import _grid, check_covers, read_glue_pose, read_objects
 from mscap.bodies.hand import FINGERS, _hand_bend, hand
 from mscap.bodies.pneumatic import pneumatic
-from mscap.errors import SceneError
-from mscap.bodies.basic import cylinder
 from mscap.bodies.registry import GENERATORS
-from mscap.bodies.glue import _grid, check_covers, read_glue_pose, read_objects
+from mscap.errors import SceneError
+from mscap.geometry import polygons as geometry
 from mscap.scene import load_scene
+from mscap.scene._toml import Table
 
 JOBS = Path(__file__).resolve().parents[2] / "jobs"
 SCENES = ("biaxial", "biaxial_quick", "pneumatic", "pneumatic_quick", "glove", "glove_quick")

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mscap.scene._toml import Table
-from mscap.errors import SceneError
 from mscap.bodies.basic import _wrist_bend, cantilever, cylinder, wrist
+from mscap.bodies.glue import _grid, check_covers, read_glue_pose, read_objects
 from mscap.bodies.kinematics import ParameterError
 from mscap.bodies.registry import GENERATORS
-from mscap.bodies.glue import _grid, check_covers, read_glue_pose, read_objects
+from mscap.errors import SceneError
 from mscap.scene import load_scene
+from mscap.scene._toml import Table
 
 JOBS = Path(__file__).resolve().parents[2] / "jobs"
 SCENES = ("wrist", "wrist_quick", "joystick", "joystick_quick")

@@ -17,10 +17,10 @@ import pytest
 
 from mscap.calibration.service import CalibrationError, Candidate, evaluate, family, physics_sha256, simulate_family, \
     targets
-from mscap.scene.calibration import NoiseModel
-from mscap.errors import SceneError
 from mscap.calibration.reconstruction import fit, point_errors, score
+from mscap.errors import SceneError
 from mscap.scene import load_scene
+from mscap.scene.calibration import NoiseModel
 from mscap.service.store import RunRecord, open_store, write_run
 
 from tests.conftest import SMALL_SCENE, to_toml

@@ -11,8 +11,8 @@ from mscap.geometry import polygons as geometry
 from mscap.design.deformer import (build_deformer, cotangent_stiffness, outer_boundary_vertices,
                             skinning_weights)
 from mscap.errors import MeshError
-from mscap.mesh.layered import extrude
 from mscap.geometry.layout import Layout
+from mscap.mesh.layered import extrude
 from mscap.mesh.triangulate import triangulate
 from mscap.scene.settings import MeshSettings
 from tests.conftest import SMALL_SCENE, grid_trimesh

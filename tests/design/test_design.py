@@ -12,8 +12,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mscap.design.pipeline import build_design
 from mscap.design.history import min_pairwise_l1
+from mscap.design.pipeline import build_design
 from mscap.scene import load_scene
 from mscap.testing import taylor_test
 from tests.conftest import to_toml

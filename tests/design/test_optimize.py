@@ -12,14 +12,14 @@ import json
 import numpy as np
 import pytest
 
-from mscap.geometry import polygons as geometry
 from mscap.cli import main
-from mscap.design.pipeline import build_design
-from mscap.geometry.layout import check_layout
-from mscap.design.history import HISTORY_FIELDS
 from mscap.design.feasibility import feasible_step, max_step_triangles
+from mscap.design.history import HISTORY_FIELDS
 from mscap.design.optimizer import _LBFGS, optimize
+from mscap.design.pipeline import build_design
 from mscap.design.remesh import remesh, resample_outline
+from mscap.geometry import polygons as geometry
+from mscap.geometry.layout import check_layout
 from mscap.scene import load_scene
 from tests.conftest import grid_trimesh, to_toml
 from tests.scenes import scene_dict

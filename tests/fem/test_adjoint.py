@@ -20,10 +20,10 @@ from mscap.fem import adjoint
 
 from mscap.fem.elastic import neohookean
 from mscap.fem.elastic.contact import Ball
-from mscap.fem.elastic.problem import assemble, build_problem
 from mscap.fem.elastic.loading import top_surface
-from mscap.scene import load_scene
+from mscap.fem.elastic.problem import assemble, build_problem
 from mscap.fem.simulate import simulate
+from mscap.scene import load_scene
 from mscap.testing import taylor_test
 from tests.conftest import to_toml
 from tests.scenes import glue_scene, grid_mesh, poke_scene_dict, scene_dict, stack, strained

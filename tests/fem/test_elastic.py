@@ -15,19 +15,20 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import brentq
 
-from mscap.fem import electrostatic as es
 from mscap.cli import main
-from mscap.fem.elastic.contact import Ball, barrier, barrier_derivatives
-from mscap.fem.elastic.problem import ElasticError, assemble, build_problem, tet_fields, total_energy
 from mscap.errors import SceneError
+from mscap.fem import electrostatic as es
+from mscap.fem.elastic.contact import Ball, barrier, barrier_derivatives
 from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import Loading, NewtonSettings, solve_pose
-from mscap.scene.poses import StretchPose
-from mscap.scene import load_scene
+from mscap.fem.elastic.problem import ElasticError, assemble, build_problem, tet_fields, total_energy
 from mscap.fem.simulate import simulate
+from mscap.scene import load_scene
+from mscap.scene.poses import StretchPose
 from mscap.testing import taylor_test
 from tests.conftest import to_toml
-from tests.scenes import CARBON, CLEAR, STACK_MM, free_thickness_stretch, grid_mesh, poke_scene_dict, scene_dict, stack, strained
+from tests.scenes import (CARBON, CLEAR, STACK_MM, free_thickness_stretch, grid_mesh, poke_scene_dict, scene_dict,
+                          stack, strained)
 
 ORDERS = pytest.mark.parametrize("order", [1, 2])
 

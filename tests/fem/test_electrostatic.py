@@ -14,12 +14,11 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from mscap.fem import electrostatic as es
-from mscap.fem import elements as fem
-from mscap.geometry import polygons as geometry
 from mscap.cli import main
-from mscap.mesh.layered import extrude
+from mscap.fem import electrostatic as es, elements as fem
+from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import Layout
+from mscap.mesh.layered import extrude
 from mscap.mesh.triangulate import triangulate
 from mscap.scene.settings import EPSILON0_PF_PER_MM, Layer, Material, MeshSettings
 from mscap.testing import taylor_test

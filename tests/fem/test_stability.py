@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from mscap.fem.elastic.problem import ElasticError
-from mscap.scene.settings import ElasticSettings
-from mscap.scene import load_scene
 from mscap.fem.simulate import simulate
+from mscap.scene import load_scene
+from mscap.scene.settings import ElasticSettings
 
 SCENES = Path(__file__).resolve().parents[2] / "benchmarks" / "scenes"
 COARSE = {"edge_length_mm": 6.0, "edge_length_outline_mm": 1.0, "grading_distance_mm": 2.0}

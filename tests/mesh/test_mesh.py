@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from mscap.geometry import polygons as geometry
 from mscap.cli import main
+from mscap.geometry import polygons as geometry
 from mscap.mesh.io import read_mesh, write_mesh
 from mscap.mesh.layered import CONDUCTIVE_LAYERS, extrude, mesh_scene
-from mscap.mesh.triangulate import TriMesh
 from mscap.mesh.quality import aspect_ratios, dihedral_angles_deg, triangle_angles_deg
+from mscap.mesh.triangulate import TriMesh
 from mscap.scene import load_scene
 
 from tests.conftest import SMALL_SCENE, to_toml

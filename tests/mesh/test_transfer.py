@@ -10,17 +10,17 @@ import dataclasses
 import numpy as np
 import pytest
 
-from mscap.fem import electrostatic as es
-from mscap.fem.elastic.problem import build_problem, total_energy
 from mscap.errors import MeshError, SceneError
-from mscap.mesh.layered import extrude, layer_fractions, mesh_elastic, mesh_scene
+from mscap.fem import electrostatic as es
 from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import NewtonSettings, solve_pose
+from mscap.fem.elastic.problem import build_problem, total_energy
+from mscap.fem.simulate import simulate
+from mscap.mesh.layered import extrude, layer_fractions, mesh_elastic, mesh_scene
+from mscap.mesh.transfer import interpolation_matrix, locate
+from mscap.scene import load_scene
 from mscap.scene.poses import StretchPose
 from mscap.scene.settings import ElasticSettings
-from mscap.scene import load_scene
-from mscap.fem.simulate import simulate
-from mscap.mesh.transfer import interpolation_matrix, locate
 from tests.conftest import grid_trimesh, to_toml
 from tests.scenes import CLEAR, STACK_MM, free_thickness_stretch, poke_scene_dict, stack
 

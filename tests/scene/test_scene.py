@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from mscap.errors import SceneError
-from mscap.scene.settings import EPSILON0_PF_PER_MM
 from mscap.scene import load_scene
+from mscap.scene.settings import EPSILON0_PF_PER_MM
 
 JOBS = Path(__file__).resolve().parents[2] / "jobs"
 

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from mscap.service.accuracy import estimate_error, finer, relative_difference
-from mscap.scene import load_scene
 from mscap.fem.simulate import simulate
+from mscap.scene import load_scene
+from mscap.service.accuracy import estimate_error, finer, relative_difference
 from tests.conftest import SMALL_SCENE
 
 

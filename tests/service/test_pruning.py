@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from mscap.scene import load_scene
 from mscap.errors import SceneError
+from mscap.scene import load_scene
 from mscap.scene.loader import with_overrides
 from mscap.service.pruning import PruneRule, Rungs, rung_values, score, score_kind
 from mscap.service.store import finished_ids, read_run, read_store

@@ -8,9 +8,9 @@ import struct
 import pytest
 
 from mscap.cli import main
-from mscap.viz.layouts import PANEL_SIZE_IN, grid_shape, panels
 from mscap.service.selection import RunSummary, select
 from mscap.service.store import failed_record, open_store, store_selection, write_run
+from mscap.viz.layouts import PANEL_SIZE_IN, grid_shape, panels
 from tests.conftest import synthetic_record
 
 DPI = 50

@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from mscap.fem.elastic.contact import Ball
-from mscap.fem.elastic.problem import ElasticError, ElasticProblem, node_values
 from mscap.fem.elastic.newton import Loading
+from mscap.fem.elastic.problem import ElasticError, ElasticProblem, node_values
 from mscap.scene.poses import PokePose, StretchPose
 
 __all__ = ["loading_for", "edge_nodes", "top_surface"]

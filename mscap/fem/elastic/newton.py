@@ -18,8 +18,9 @@ nodes pushed out of the ball, then runs Newton on the total energy:
 
 Intermediate load steps stop at ``step_tolerance`` (they only carry the path); the last
 one meets ``tolerance``. When Newton stalls (line search fails, or too many iterations)
-the load step is halved, and grows back after each success; after ``max_cuts`` halvings the pose fails with an :class:`~mscap.fem.elastic.problem.ElasticError`
-that names the pose, the load step and the residual. Nothing non-finite is ever accepted.
+the load step is halved, and grows back after each success; after ``max_cuts`` halvings
+the pose fails with an :class:`~mscap.fem.elastic.problem.ElasticError` that names the
+pose, the load step and the residual. Nothing non-finite is ever accepted.
 
 Dirichlet dofs are kept in the matrix as identity rows and columns, so the CSR pattern —
 and PETSc's symbolic factorisation — is the same for every pose of a mesh.
@@ -35,9 +36,9 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
+from mscap.errors import LinearSolveError
 from mscap.fem.elastic.contact import Ball
 from mscap.fem.elastic.problem import ElasticError, ElasticProblem, assemble, total_energy
-from mscap.errors import LinearSolveError
 from mscap.fem.petsc import Operator
 from mscap.fem.profile import timed
 from mscap.scene.settings import HESSIAN_MODES, ElasticSettings

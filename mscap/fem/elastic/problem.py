@@ -23,12 +23,11 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from mscap.fem import elements as fem
-
-from mscap.fem.elastic import neohookean
 from mscap.errors import ElasticError
-from mscap.mesh.layered import LayeredMesh, tet_values
+from mscap.fem import elements as fem
+from mscap.fem.elastic import neohookean
 from mscap.fem.profile import timed
+from mscap.mesh.layered import LayeredMesh, tet_values
 
 __all__ = ["ElasticError", "ElasticProblem", "Assembly", "build_problem", "rest_geometry", "lame_of_tets",
            "assemble", "total_energy", "node_values", "tet_fields"]
