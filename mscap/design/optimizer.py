@@ -110,8 +110,8 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
     started = time.perf_counter()
     q = design.deformer.zeros() if q0 is None else np.array(q0, dtype=float)
     e = design.evaluate(q)
-    initial = e
     g = _gradient(design, e)
+    initial = e.detached()
     memory = _LBFGS()
     history: list[Record] = []
     level, iteration, level_iterations, reason = 0, 0, 0, ""
@@ -176,8 +176,10 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
                                 or np.linalg.norm(g) <= settings.gradient_tolerance * level_gradient):
                             converged, reason = True, "converged"
                         elif needs_remesh(design, e.q, fresh, settings.remesh_angle_deg):
-                            design, warm = remesh(design, e)
+                            old, (design, warm) = design, remesh(design, e)
                             e = design.evaluate(design.deformer.zeros(), warm=warm)
+                            old.close()
+                            del old  # its meshes and skinning weights (140 MB on poking_cross, k = 6)
                             g = _gradient(design, e)
                             memory.reset()
                             fresh = min_angle(design, e.q)
@@ -199,7 +201,11 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
             step_length = settings.first_step_mm
             record("cascade")
     except DesignError as exc:  # a non-finite value: stop, naming where
+        design.close()
         raise DesignError(f"iteration {iteration + 1} (level {level}): {exc}") from exc
+    except BaseException:
+        design.close()
+        raise
     return OptimizeResult(design, e, initial, tuple(history), iteration, reason, time.perf_counter() - started)
 
 

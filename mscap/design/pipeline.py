@@ -59,7 +59,7 @@ class Evaluation:
     bound), ``barrier`` and ``smoothing`` (mm²) unweighted; ``capacitance_pF``
     ``(n_poses, k)`` over the design poses; ``sim`` holds the moved meshes and each
     pose's equilibrium with its kept factorisation (for :meth:`Design.gradient`, until
-    :meth:`release`); ``newton_iterations`` per pose.
+    :meth:`release`; ``None`` once :meth:`detached`); ``newton_iterations`` per pose.
     """
 
     q: np.ndarray
@@ -68,7 +68,7 @@ class Evaluation:
     barrier: float
     smoothing: float
     capacitance_pF: np.ndarray
-    sim: Simulation
+    sim: Simulation | None
     newton_iterations: tuple[int, ...]
     time_s: float
     released: bool = False
@@ -81,11 +81,21 @@ class Evaluation:
         """Destroy the kept factorisations (PETSc objects) now: :meth:`Design.gradient`
         needs them, nothing else does. Dropping the last reference is not enough — the
         poking scene kept ~34 MB of native memory per evaluation alive that way."""
+        if self.sim is None:
+            return
         for result in self.sim.poses:
             operator = None if result.state is None else result.state.operator
             if operator is not None:
                 operator.destroy()
         object.__setattr__(self, "released", True)
+
+    def detached(self) -> "Evaluation":
+        """This evaluation's values (q, J and its parts, C) without its simulation, for
+        keeping: the meshes and fields of a design the optimiser has remeshed away from
+        would otherwise stay alive with it (the initial evaluation kept a whole
+        electrostatic problem, 60 MB on poking_cross)."""
+        self.release()
+        return replace(self, sim=None, released=True)
 
     def displacements(self) -> list[np.ndarray | None]:
         """Per pose, the elastic node displacement ``(n_nodes, 3)`` (``None`` if free)."""
@@ -107,6 +117,16 @@ class Design:
     #: Solvers reused by every evaluation (same patterns, so PETSc's symbolic
     #: factorisations are kept; a new KSP per evaluation also kept ~15 MB each alive).
     workspace: dict = field(default_factory=dict, repr=False)
+
+    def close(self) -> None:
+        """Destroy the PETSc solvers of :attr:`workspace` (their factorisations) now:
+        petsc4py objects free no native memory when garbage-collected, so every design an
+        optimisation remeshed away from kept its factorisations (a multi-start worker grew
+        to 3 GB on poking_cross). The design stays usable; an evaluation makes new ones."""
+        for solver in self.workspace.values():
+            if solver is not None:
+                solver.destroy()
+        self.workspace.clear()
 
     def _solvers(self):
         if "electro" not in self.workspace:
@@ -195,8 +215,9 @@ class Design:
         weights = None
         if base.elastic is not None and base.transfer is not None:
             weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
+        # Same meshes, same patterns: the solvers (and their symbolic factorisations) carry over.
         return Design(replace(self.scene, layout=deformer.layout(deformer.zeros())), base, deformer, weights,
-                      self.objective)
+                      self.objective, self.workspace)
 
 
 def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:

@@ -122,7 +122,7 @@ class Capacitances:
         ``(k,)`` capacitance of each capacitor: top plate at 1 V, every other plate 0 V.
     potentials
         ``(n_dofs, m)`` potentials (V) with plate ``plates[i]`` at 1 V, all other plates
-        at 0 V.
+        at 0 V (``None`` when dropped: :func:`mscap.fem.simulate.solve_poses`).
     plates
         ``(m,)`` the plate held at 1 V in each column: the top plates ``k..2k-1``, or
         all plates ``0..2k-1`` when the Maxwell matrix was asked for.
@@ -133,7 +133,7 @@ class Capacitances:
     """
 
     capacitance_pF: np.ndarray
-    potentials: np.ndarray
+    potentials: np.ndarray | None
     plates: np.ndarray
     maxwell_pF: np.ndarray | None
     assembly_s: float
@@ -205,15 +205,11 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Electr
     plate_of_dof = np.full(n_dofs, -1)
     plate_of_dof[dof_of_pair] = plate_of_pair
 
-    tets, dofs = mesh.tets[~conductor], all_dofs[~conductor]
+    tets = mesh.tets[~conductor]
+    dofs = tets if order == 1 else all_dofs[~conductor]  # P1: the dofs are the vertices
     eps = permittivity_of_tets(mesh, layers)[~conductor]
-    nb = dofs.shape[1]
-    rows = np.repeat(dofs, nb, axis=1).ravel()
-    cols = np.tile(dofs, (1, nb)).ravel()
-    keys, entry_to_csr = np.unique(rows * n_dofs + cols, return_inverse=True)
-    del rows, cols
-    csr_row, indices = np.divmod(keys, n_dofs)
-    indptr = np.searchsorted(csr_row, np.arange(n_dofs + 1))
+    indptr, indices, entry_to_csr = _csr_pattern(dofs, n_dofs)
+    csr_row = np.repeat(np.arange(n_dofs), np.diff(indptr))
 
     is_free = plate_of_dof < 0
     free = np.flatnonzero(is_free)
@@ -227,11 +223,41 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Electr
     problem = ElectrostaticProblem(
         mesh=mesh, order=order, tets=tets, dofs=dofs, permittivity=eps, n_dofs=n_dofs,
         plate_of_dof=plate_of_dof, free=free, indptr=indptr, indices=indices,
-        entry_to_csr=entry_to_csr.astype(np.int64), ff_entries=ff_entries, ff_indptr=ff_indptr,
+        entry_to_csr=entry_to_csr, ff_entries=ff_entries, ff_indptr=ff_indptr,
         ff_indices=free_index[indices[ff_entries]], fd_entries=fd_entries, fd_target=fd_target)
     log.info("electrostatic P%d problem: %d dofs (%d free), %d nonzeros, %d dielectric tets (%.2f s)",
              order, n_dofs, len(free), len(indices), len(tets), time.perf_counter() - start)
     return problem
+
+
+def _element_entries(dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column dof of every element-matrix entry of ``dofs`` ``(m, nb)``, in the
+    order of ``local.ravel()`` for element matrices ``local`` ``(m, nb, nb)``."""
+    nb = dofs.shape[1]
+    return np.repeat(dofs, nb, axis=1).ravel(), np.tile(dofs, (1, nb)).ravel()
+
+
+def _csr_pattern(dofs: np.ndarray, n_dofs: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The CSR pattern (``indptr``, ``indices``) of a matrix assembled from element
+    matrices on ``dofs`` ``(M, nb)``, and each element entry's position in its data.
+
+    Built ``BLOCK`` elements at a time, so the temporaries stay a few tens of MB; one
+    ``np.unique`` over all ``M nb²`` entries needed about 800 bytes per tet (1.1 GB on the
+    glove's finer-mesh check, the largest allocation of a multi-start worker)."""
+    pattern = sp.csr_matrix((n_dofs, n_dofs), dtype=np.float32)
+    for start in range(0, len(dofs), fem.BLOCK):
+        rows, cols = _element_entries(dofs[start:start + fem.BLOCK])
+        pattern = pattern + sp.csr_matrix((np.ones(len(rows), dtype=np.float32), (rows, cols)),
+                                          shape=(n_dofs, n_dofs))
+    pattern.sum_duplicates()  # also sorts the column indices of each row
+    indptr, indices = pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64)
+    keys = np.repeat(np.arange(n_dofs, dtype=np.int64), np.diff(indptr)) * n_dofs + indices
+    nb = dofs.shape[1]
+    entry_to_csr = np.empty(len(dofs) * nb * nb, dtype=np.int64)
+    for start in range(0, len(dofs), fem.BLOCK):
+        rows, cols = _element_entries(dofs[start:start + fem.BLOCK])
+        entry_to_csr[start * nb * nb:start * nb * nb + len(rows)] = np.searchsorted(keys, rows * n_dofs + cols)
+    return indptr, indices, entry_to_csr
 
 
 def _name(plate: int, k: int) -> str:
@@ -257,18 +283,36 @@ def assemble(problem: ElectrostaticProblem, x: np.ndarray | None = None) -> np.n
         If a dielectric tet is inverted or degenerate at ``x``.
     """
     x = _positions(problem, x)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # degenerate tets: reported below
-        local = fem.stiffness(problem.element, x, problem.tets, problem.permittivity)
-    # A vertex's diagonal entry ε vol ∫|∇N_0|² has the sign of the volume (ε > 0): a
-    # non-positive or non-finite one marks an inverted or degenerate tet, without a
-    # second pass over all tets for their volumes (a third of the assembly's time).
-    corner = local[:, 0, 0]
-    bad = np.flatnonzero(~(np.isfinite(corner) & (corner > 0)))
-    if len(bad):
-        vol = tet_volumes(x, problem.tets[bad[:1]])[0]
-        raise ElectrostaticError(f"{len(bad)} dielectric tets are inverted or degenerate at the given "
-                                 f"positions (e.g. tet {int(bad[0])}, volume {vol:.3g} mm³)")
-    return np.bincount(problem.entry_to_csr, weights=local.ravel(), minlength=len(problem.indices))
+    data = np.zeros(len(problem.indices))
+    nb2 = problem.dofs.shape[1] ** 2
+    # BLOCK tets at a time: the element matrices of all tets at once were the largest
+    # temporary of an evaluation (M nb² doubles, 145 MB on the glove's finer mesh).
+    for start in range(0, len(problem.tets), fem.BLOCK):
+        block = slice(start, start + fem.BLOCK)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # degenerate tets: reported below
+            local = fem.stiffness(problem.element, x, problem.tets[block], problem.permittivity[block])
+        # A vertex's diagonal entry ε vol ∫|∇N_0|² has the sign of the volume (ε > 0): a
+        # non-positive or non-finite one marks an inverted or degenerate tet, without a
+        # second pass over all tets for their volumes (a third of the assembly's time).
+        corner = local[:, 0, 0]
+        bad = np.flatnonzero(~(np.isfinite(corner) & (corner > 0)))
+        if len(bad):
+            _raise_inverted(problem, x, start + bad)
+        entries = problem.entry_to_csr[start * nb2:start * nb2 + local.size]
+        lo, hi = entries.min(), entries.max() + 1  # a block's rows are a window of the CSR data
+        data[lo:hi] += np.bincount(entries - lo, weights=local.ravel(), minlength=hi - lo)
+    return data
+
+
+def _raise_inverted(problem: ElectrostaticProblem, x: np.ndarray, bad: np.ndarray) -> None:
+    """Raise for the inverted or degenerate dielectric tets ``bad`` (all of them counted)."""
+    count = len(bad)
+    for start in range(int(bad[-1]) + 1, len(problem.tets), fem.BLOCK):
+        vol = tet_volumes(x, problem.tets[start:start + fem.BLOCK])
+        count += int((~(np.isfinite(vol) & (vol > 0))).sum())
+    vol = tet_volumes(x, problem.tets[bad[:1]])[0]
+    raise ElectrostaticError(f"{count} dielectric tets are inverted or degenerate at the given "
+                             f"positions (e.g. tet {int(bad[0])}, volume {vol:.3g} mm³)")
 
 
 def solve(problem: ElectrostaticProblem, x: np.ndarray | None = None, maxwell: bool = False,

@@ -23,6 +23,9 @@ from mscap.mesh.triangulate import TriMesh
 
 __all__ = ["locate", "p1_matrix", "interpolation_matrix"]
 
+#: Points located per block by :func:`interpolation_matrix`.
+POINT_BLOCK = 65536
+
 
 def locate(mesh: TriMesh, points: np.ndarray, candidates: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """The triangle of ``mesh`` containing each of ``points`` ``(n, 2)`` and the point's
@@ -60,8 +63,25 @@ def interpolation_matrix(problem, points: np.ndarray) -> sp.csr_matrix:
 
     ``problem.mesh`` must come from :func:`mscap.mesh.layered.extrude` (tets numbered slab by
     slab, three per triangle)."""
-    mesh = problem.mesh
     points = np.asarray(points, dtype=float)
+    # POINT_BLOCK points at a time: the candidate tets' Jacobians and coordinates take
+    # about 1.2 kB per point (300 MB for the glove's finer-mesh check all at once).
+    parts = [_shape_values(problem, points[start:start + POINT_BLOCK])
+             for start in range(0, len(points), POINT_BLOCK)]
+    tet = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, dtype=int)
+    weights = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, problem.nodes.shape[1]))
+    rows = np.arange(len(points))
+    nodes = problem.nodes[tet]
+    matrix = sp.csr_matrix((weights.ravel(), (np.repeat(rows, nodes.shape[1]), nodes.ravel())),
+                           shape=(len(points), problem.n_nodes))
+    matrix.sum_duplicates()
+    return matrix
+
+
+def _shape_values(problem, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The elastic tet containing each of ``points`` ``(n, 3)`` and its shape functions'
+    values there ``(n, nb)`` (see :func:`interpolation_matrix`)."""
+    mesh = problem.mesh
     n_tri = len(mesh.mesh2d.triangles)
     triangle, _ = locate(mesh.mesh2d, points[:, :2])
     z = mesh.level_z_mm
@@ -84,8 +104,4 @@ def interpolation_matrix(problem, points: np.ndarray) -> sp.csr_matrix:
     else:  # P2: λa(2λa − 1) at the vertices, 4 λa λb at the edge nodes
         a, b = fem.TET_EDGES[:, 0], fem.TET_EDGES[:, 1]
         weights = np.concatenate([lam * (2 * lam - 1), 4 * lam[:, a] * lam[:, b]], axis=1)
-    nodes = problem.nodes[tet]
-    matrix = sp.csr_matrix((weights.ravel(), (np.repeat(rows, nodes.shape[1]), nodes.ravel())),
-                           shape=(len(points), problem.n_nodes))
-    matrix.sum_duplicates()
-    return matrix
+    return tet, weights

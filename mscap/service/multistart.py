@@ -66,7 +66,9 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
             verdicts.append(ask((config.k, row.iteration, float(score(kind, row.J, row.d, row.min_l1_pF)))))
             return verdicts[-1].keep
 
-        result = optimize(design, max_iterations=max_iterations,
+        handed = [design]
+        del design  # optimize() holds the only reference: the first remesh frees the design
+        result = optimize(handed.pop(), max_iterations=max_iterations,
                           checkpoint=checkpoint if ask is not None and rule.enabled else None)
         record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
                                     time.perf_counter() - start, rank)
@@ -77,7 +79,8 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
             record = replace(record, bound_mm=bound.value(record.final_capacitance_pF),
                              initial_bound_mm=bound.value(record.initial_capacitance_pF))
         final = result.layout
-        del design, result  # the finer mesh's check below should not add to the design's memory
+        result.design.close()
+        del result  # the finer mesh's check below should not add to the design's memory
     except Exception as exc:  # a failed start is a result, not a crash of the job
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
         return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",

@@ -7,7 +7,9 @@ from __future__ import annotations
 import copy
 import csv
 import dataclasses
+import gc
 import json
+import weakref
 
 import numpy as np
 import pytest
@@ -120,6 +122,37 @@ def test_optimize_decreases_J_with_remesh_and_cascade(poke_scene):
             assert after.J < before.J
     assert result.evaluation.min_l1_pF > result.initial.min_l1_pF
     check_layout(result.layout, scene.sheet_outline_mm, scene.min_gap_mm)
+
+
+def test_designs_remeshed_away_from_are_freed(poke_scene, monkeypatch):
+    """A remesh replaces the design: the old one's PETSc solvers are destroyed and nothing
+    keeps it alive (petsc4py frees native memory only on destroy; a multi-start worker
+    that kept them grew to 3 GB on poking_cross), nor its meshes through the initial
+    evaluation. A cascade level keeps the meshes, so it shares the solvers."""
+    from mscap.design import optimizer, remesh as remeshing
+
+    built, calls = [], iter(range(1000))
+    original = remeshing.build_design
+
+    def recording_build(*args, **kwargs):
+        built.append(original(*args, **kwargs))
+        return built[-1]
+
+    monkeypatch.setattr(remeshing, "build_design", recording_build)
+    monkeypatch.setattr(optimizer, "needs_remesh", lambda *args: next(calls) in (0, 1))  # two remeshes
+    design = build_design(load_scene(poke_scene))
+    result = optimize(design, max_iterations=3)
+    assert [r.event for r in result.history].count("remesh") == 2
+    assert len(built) == 2 and design.workspace == {} and built[0].workspace == {}
+    first, second = weakref.ref(built[0]), weakref.ref(built[1])
+    del built
+    gc.collect()
+    assert first() is None  # the caller's design stays the caller's; the intermediate one is gone
+    assert second() is None or second() is result.design or second().workspace == {}
+    assert result.initial.sim is None and result.initial.capacitance_pF.shape == result.evaluation.capacitance_pF.shape
+    # The result's design still evaluates (a closed design makes new solvers).
+    np.testing.assert_allclose(result.design.evaluate(result.evaluation.q).J, result.evaluation.J, rtol=1e-9)
+    result.design.close()
 
 
 def test_remesh_keeps_the_outlines_and_warm_starts(poke_scene):

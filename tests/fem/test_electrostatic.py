@@ -206,6 +206,29 @@ def test_p1_kernels_equal_the_general_ones(problems, two_plates):
                                rtol=1e-10, atol=1e-12 * np.abs(general).max())
 
 
+@ORDERS
+def test_blockwise_assembly_equals_one_shot_assembly(two_plates, order, monkeypatch):
+    """The pattern and values built a few tets at a time (to bound memory) are those of
+    scipy's COO → CSR sum over all element matrices at once, for any block size."""
+    x = perturbed(two_plates)
+    reference = None
+    for block in (7, 64, 10 ** 6):
+        monkeypatch.setattr(fem, "BLOCK", block)
+        problem = es.build_problem(two_plates, make_layers(), order)
+        nb = problem.dofs.shape[1]
+        local = fem.stiffness(problem.element, x, problem.tets, problem.permittivity)
+        rows, cols = np.repeat(problem.dofs, nb, axis=1).ravel(), np.tile(problem.dofs, (1, nb)).ravel()
+        full = sp.coo_matrix((local.ravel(), (rows, cols)), shape=(problem.n_dofs,) * 2).tocsr()
+        full.sort_indices()
+        np.testing.assert_array_equal(problem.indptr, full.indptr)
+        np.testing.assert_array_equal(problem.indices, full.indices)
+        data = es.assemble(problem, x)
+        np.testing.assert_allclose(data, full.data, rtol=1e-13, atol=1e-15 * np.abs(full.data).max())
+        if reference is not None:
+            np.testing.assert_allclose(data, reference, rtol=1e-13, atol=1e-15 * np.abs(reference).max())
+        reference = data
+
+
 def test_taylor_remainder_is_second_order(problems, two_plates):
     problem = problems[2]
     x = perturbed(two_plates)

@@ -17,6 +17,7 @@ from mscap.fem.elastic.newton import NewtonSettings, solve_pose
 from mscap.fem.elastic.problem import build_problem, total_energy
 from mscap.fem.simulate import simulate
 from mscap.mesh.layered import extrude, layer_fractions, mesh_elastic, mesh_scene
+from mscap.mesh import transfer
 from mscap.mesh.transfer import interpolation_matrix, locate
 from mscap.scene import load_scene
 from mscap.scene.poses import StretchPose
@@ -75,7 +76,7 @@ def test_mixed_tets_carry_the_exact_energy_of_a_homogeneous_strain(order):
 
 
 @pytest.mark.parametrize("order", [1, 2])
-def test_interpolation_reproduces_the_element_polynomials(order):
+def test_interpolation_reproduces_the_element_polynomials(order, monkeypatch):
     # T evaluates the elastic shape functions: it must reproduce affine fields (P1) and
     # quadratics (P2) exactly, at interior points, on layer interfaces inside the slabs,
     # on shared faces and edges, and on the sheet's boundary and corners.
@@ -95,6 +96,10 @@ def test_interpolation_reproduces_the_element_polynomials(order):
         return linear if order == 1 else linear + np.column_stack([x * y, z * z - x * z, y * y])
     # Measured 4e-15 (P1) and 2e-14 (P2).
     np.testing.assert_allclose(T @ field(problem.rest), field(points), rtol=0, atol=1e-12)
+    # Located a few points at a time (the memory bound), the matrix is the same.
+    monkeypatch.setattr(transfer, "POINT_BLOCK", 37)
+    blocked = interpolation_matrix(problem, points)
+    assert (blocked != T).nnz == 0
 
 
 def test_points_outside_the_sheet_are_reported():

@@ -335,7 +335,18 @@ def solve_pose(problem: ElasticProblem, loading: Loading, settings: NewtonSettin
     settings = settings or NewtonSettings()
     if settings.hessian not in HESSIAN_MODES:
         raise ElasticError(f"hessian mode must be one of {', '.join(HESSIAN_MODES)}, got {settings.hessian!r}")
-    run = _Pose(problem, loading, settings, operator or Operator(problem))
+    own = operator is None  # ours to destroy (petsc4py frees native memory only then)
+    run = _Pose(problem, loading, settings, Operator(problem) if own else operator)
+    try:
+        return _follow_load_path(problem, loading, settings, run, keep_factorisation, progress)
+    finally:
+        if own:
+            run.op.destroy()
+
+
+def _follow_load_path(problem: ElasticProblem, loading: Loading, settings: NewtonSettings, run: "_Pose",
+                      keep_factorisation: bool, progress: Callable[[str], None] | None) -> ElasticState:
+    """:func:`solve_pose`'s load stepping, on ``run``'s operator."""
     x = problem.rest.copy()
     previous: tuple[np.ndarray, float] | None = None
     t, dt, steps, cuts, residual = 0.0, 1.0 / loading.load_steps, 0, 0, 0.0
@@ -385,12 +396,16 @@ def solve_pose(problem: ElasticProblem, loading: Loading, settings: NewtonSettin
     op = None
     if keep_factorisation:
         op = Operator(problem, "adjoint_")
-        keeper = _Pose(problem, loading, settings, op)
-        keeper.ball = run.ball
-        h = run.final_hessian
-        if h is None:  # projected mode: the adjoint needs the exact Hessian
-            _, _, h, _ = keeper.gradient_and_hessian(x, hessian=True, project=False)
-        keeper.factorise(h.copy())
+        try:
+            keeper = _Pose(problem, loading, settings, op)
+            keeper.ball = run.ball
+            h = run.final_hessian
+            if h is None:  # projected mode: the adjoint needs the exact Hessian
+                _, _, h, _ = keeper.gradient_and_hessian(x, hessian=True, project=False)
+            keeper.factorise(h.copy())
+        except BaseException:
+            op.destroy()
+            raise
     gap = float(run.ball.distances(x).min()) if run.ball is not None else None
     state = ElasticState(loading.pose, x, steps, run.iterations, cuts, residual, min_j, energy, gap,
                          run.projected, dict(run.times), op)
