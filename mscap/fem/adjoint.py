@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 
 from mscap.errors import AdjointError
-from mscap.fem import electrostatic, elements as fem
+from mscap.fem import electrostatic
 from mscap.fem.elastic import neohookean
 from mscap.fem.elastic.contact import Ball, barrier_derivatives
 from mscap.fem.elastic.loading import loading_for
@@ -132,8 +132,8 @@ def elastic_rest_vjp(problem: ElasticProblem, x: np.ndarray, adjoint: np.ndarray
     contracted with λ, with respect to the rest vertex positions (μ, λ_Lamé fixed)."""
     el, nodes = problem.element, problem.nodes
     out = np.zeros((problem.n_vertices, 3))
-    for start in range(0, len(nodes), fem.BLOCK):
-        part = slice(start, start + fem.BLOCK)
+    for start in range(0, len(nodes), problem.block):
+        part = slice(start, start + problem.block)
         G, vol = problem.rest_inv[part], problem.rest_vol[part]
         mu, lame = problem.mu[part], problem.lam[part]
         xt = np.swapaxes(x[nodes[part]], 1, 2)
@@ -207,8 +207,8 @@ def _hessian_product(problem: ElasticProblem, x: np.ndarray, v: np.ndarray, rows
     on those nodes (its Hessian is block diagonal)."""
     out = np.zeros((problem.n_nodes, 3))
     touching = np.flatnonzero(rows[problem.nodes].any(axis=1))
-    for start in range(0, len(touching), fem.BLOCK):
-        part = touching[start:start + fem.BLOCK]
+    for start in range(0, len(touching), problem.block):
+        part = touching[start:start + problem.block]
         nodes = problem.nodes[part]
         terms = neohookean.element_terms(problem.element, problem.rest_inv[part], problem.rest_vol[part],
                                          x[nodes], problem.mu[part], problem.lam[part])

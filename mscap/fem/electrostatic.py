@@ -253,7 +253,9 @@ def _csr_pattern(dofs: np.ndarray, n_dofs: int) -> tuple[np.ndarray, np.ndarray,
     indptr, indices = pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64)
     keys = np.repeat(np.arange(n_dofs, dtype=np.int64), np.diff(indptr)) * n_dofs + indices
     nb = dofs.shape[1]
-    entry_to_csr = np.empty(len(dofs) * nb * nb, dtype=np.int64)
+    # int32 where it fits: M nb² entries are the largest array of the problem (P1: 64 of
+    # its 160 bytes per tet); assemble() widens one block at a time.
+    entry_to_csr = np.empty(len(dofs) * nb * nb, dtype=np.int32 if len(indices) < 2 ** 31 else np.int64)
     for start in range(0, len(dofs), fem.BLOCK):
         rows, cols = _element_entries(dofs[start:start + fem.BLOCK])
         entry_to_csr[start * nb * nb:start * nb * nb + len(rows)] = np.searchsorted(keys, rows * n_dofs + cols)
@@ -299,8 +301,8 @@ def assemble(problem: ElectrostaticProblem, x: np.ndarray | None = None) -> np.n
         if len(bad):
             _raise_inverted(problem, x, start + bad)
         entries = problem.entry_to_csr[start * nb2:start * nb2 + local.size]
-        lo, hi = entries.min(), entries.max() + 1  # a block's rows are a window of the CSR data
-        data[lo:hi] += np.bincount(entries - lo, weights=local.ravel(), minlength=hi - lo)
+        lo, hi = int(entries.min()), int(entries.max()) + 1  # a block's rows are a window of the CSR data
+        data[lo:hi] += np.bincount(entries.astype(np.intp) - lo, weights=local.ravel(), minlength=hi - lo)
     return data
 
 

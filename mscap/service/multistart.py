@@ -20,6 +20,8 @@ writes the selection and aborts the workers still busy.
 
 from __future__ import annotations
 
+import ctypes
+import gc
 import logging
 import math
 import time
@@ -53,6 +55,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     from mscap.geometry.initial import initial_layout
     from mscap.design.optimizer import optimize
 
+    release_freed_memory()  # what the previous start on this worker freed
     start = time.perf_counter()
     try:
         layout = initial_layout(scene, config.k, config.seed, config.init)
@@ -81,6 +84,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         final = result.layout
         result.design.close()
         del result  # the finer mesh's check below should not add to the design's memory
+        release_freed_memory()
     except Exception as exc:  # a failed start is a result, not a crash of the job
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
         return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
@@ -94,6 +98,18 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
                     config.id, type(exc).__name__, exc)
         return record
     return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s)
+
+
+def release_freed_memory() -> None:
+    """Collect garbage and hand the heap's free pages back to the system (glibc's
+    ``malloc_trim``; nothing elsewhere). Freed numpy and PETSc memory stays in the process
+    otherwise: after a poking start (k = 6) the worker held 713 MB, of which trimming
+    returned 544 MB, and the finer-mesh check then grew from there."""
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
 
 
 def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,

@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 import pytest
 
-from mscap.calibration.service import CalibrationError, Candidate, evaluate, family, physics_sha256, simulate_family, \
+from mscap.calibration.service import Candidate, evaluate, family, physics_sha256, simulate_family, \
     targets
 from mscap.calibration.reconstruction import fit, point_errors, score
 from mscap.errors import SceneError
@@ -23,7 +23,7 @@ from mscap.scene import load_scene
 from mscap.scene.calibration import NoiseModel
 from mscap.service.store import RunRecord, open_store, write_run
 
-from tests.conftest import SMALL_SCENE, to_toml
+from tests.conftest import SMALL_SCENE
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -145,7 +145,7 @@ def test_designs_remeshed_away_from_are_freed(poke_scene, monkeypatch):
     assert [r.event for r in result.history].count("remesh") == 2
     assert len(built) == 2 and design.workspace == {} and built[0].workspace == {}
     first, second = weakref.ref(built[0]), weakref.ref(built[1])
-    del built
+    built.clear()
     gc.collect()
     assert first() is None  # the caller's design stays the caller's; the intermediate one is gone
     assert second() is None or second() is result.design or second().workspace == {}

@@ -60,7 +60,7 @@ class ElasticProblem:
     csr_of_block
         ``(n_blocks · 9,)`` CSR data position of block entry ``9 b + 3 c + d``.
     scatter
-        Per chunk of :data:`mscap.fem.elements.BLOCK` elements, the sparse 0/1 matrix that sums
+        Per chunk of :attr:`block` elements, the sparse 0/1 matrix that sums
         the chunk's node-pair blocks into the global blocks (one sparse product).
     force_scale
         ``(n_nodes,)`` ``Σ μ_e vol_e^(2/3)`` over the node's elements (N): gradients divided
@@ -91,6 +91,11 @@ class ElasticProblem:
     @property
     def n_nodes(self) -> int:
         return len(self.rest)
+
+    @property
+    def block(self) -> int:
+        """Elements per assembly chunk: :func:`elements_per_block`."""
+        return elements_per_block(self.nodes.shape[1])
 
     @property
     def n_dofs(self) -> int:
@@ -167,10 +172,10 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Elasti
 
     scale = mu * rest_vol ** (2.0 / 3.0)
     force_scale = np.bincount(nodes.ravel(), weights=np.repeat(scale, nb), minlength=n_nodes)
-    scatter = []
-    for start in range(0, len(nodes), fem.BLOCK):
+    scatter, block = [], elements_per_block(nb)
+    for start in range(0, len(nodes), block):
         # Pair order (a, b, element) of neohookean.element_terms' Hessian layout.
-        pairs = block_of_pair[start * nb * nb:(start + fem.BLOCK) * nb * nb]
+        pairs = block_of_pair[start * nb * nb:(start + block) * nb * nb]
         pairs = pairs.reshape(-1, nb * nb).T.ravel()
         scatter.append(sp.csr_matrix((np.ones(len(pairs)), (pairs, np.arange(len(pairs)))),
                                      shape=(len(unique), len(pairs))))
@@ -181,6 +186,19 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Elasti
     log.info("elastic P%d problem: %d nodes, %d dofs, %d nonzeros (%.2f s)", order, n_nodes,
              3 * n_nodes, len(indices), time.perf_counter() - started)
     return problem
+
+
+#: Hessian entries per assembly chunk: :data:`mscap.fem.elements.BLOCK` P1 tets (144 each,
+#: 38 MB of doubles).
+HESSIAN_ENTRIES_PER_BLOCK = fem.BLOCK * 144
+
+
+def elements_per_block(nb: int) -> int:
+    """Elements per assembly chunk for ``nb`` nodes per element: :data:`fem.BLOCK` for P1,
+    fewer for P2 (900 Hessian entries each), so that a chunk's element Hessians and their
+    temporaries take the same memory as for P1. With P1's block, a P2 chunk's temporaries
+    were 570 MB, the peak of the biaxial finer-mesh check."""
+    return max(1, min(fem.BLOCK, HESSIAN_ENTRIES_PER_BLOCK // (9 * nb * nb)))
 
 
 def node_values(problem: ElasticProblem, vertex_values: np.ndarray) -> np.ndarray:
@@ -203,8 +221,8 @@ def assemble(problem: ElasticProblem, x: np.ndarray, hessian: bool = True,
     energy, min_j = 0.0, np.inf
     gradient = np.zeros((problem.n_nodes, 3))
     blocks = np.zeros((9, len(problem.indices) // 9)) if hessian else None
-    for start in range(0, len(nodes), fem.BLOCK):
-        part = slice(start, start + fem.BLOCK)
+    for start in range(0, len(nodes), problem.block):
+        part = slice(start, start + problem.block)
         terms = neohookean.element_terms(el, problem.rest_inv[part], problem.rest_vol[part],
                                          x[nodes[part]], problem.mu[part], problem.lam[part],
                                          hessian=hessian, project=project)
@@ -217,7 +235,7 @@ def assemble(problem: ElasticProblem, x: np.ndarray, hessian: bool = True,
             gradient[:, i] += np.bincount(flat, weights=terms.gradient[:, :, i].ravel(), minlength=problem.n_nodes)
         if hessian:
             local = terms.hessian.reshape(9, -1)
-            scatter = problem.scatter[start // fem.BLOCK]
+            scatter = problem.scatter[start // problem.block]
             for e in range(9):
                 blocks[e] += scatter @ local[e]
     data = None
@@ -230,8 +248,8 @@ def assemble(problem: ElasticProblem, x: np.ndarray, hessian: bool = True,
 def total_energy(problem: ElasticProblem, x: np.ndarray) -> tuple[float, float]:
     """Elastic energy (``inf`` if inverted) and min J at ``x``, without derivatives."""
     energy, min_j = 0.0, np.inf
-    for start in range(0, len(problem.nodes), fem.BLOCK):
-        part = slice(start, start + fem.BLOCK)
+    for start in range(0, len(problem.nodes), problem.block):
+        part = slice(start, start + problem.block)
         e, j = neohookean.element_energy(problem.element, problem.rest_inv[part], problem.rest_vol[part],
                                          x[problem.nodes[part]], problem.mu[part], problem.lam[part])
         energy += float(e.sum())
