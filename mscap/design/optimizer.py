@@ -200,11 +200,10 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
             fresh = min_angle(design, e.q)
             step_length = settings.first_step_mm
             record("cascade")
-    except DesignError as exc:  # a non-finite value: stop, naming where
+    except BaseException as exc:  # free the current design's solvers; a non-finite value: say where
         design.close()
-        raise DesignError(f"iteration {iteration + 1} (level {level}): {exc}") from exc
-    except BaseException:
-        design.close()
+        if isinstance(exc, DesignError):
+            raise DesignError(f"iteration {iteration + 1} (level {level}): {exc}") from exc
         raise
     return OptimizeResult(design, e, initial, tuple(history), iteration, reason, time.perf_counter() - started)
 

@@ -27,9 +27,11 @@ __all__ = ["locate", "p1_matrix", "interpolation_matrix"]
 POINT_BLOCK = 65536
 
 
-def locate(mesh: TriMesh, points: np.ndarray, candidates: int = 8) -> tuple[np.ndarray, np.ndarray]:
+def locate(mesh: TriMesh, points: np.ndarray, candidates: int = 8,
+           locator: TriangleLocator | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The triangle of ``mesh`` containing each of ``points`` ``(n, 2)`` and the point's
-    barycentric coordinates there ``(n, 3)`` (clipped at 0 and renormalised).
+    barycentric coordinates there ``(n, 3)`` (clipped at 0 and renormalised); ``locator``:
+    ``mesh``'s :class:`TriangleLocator`, when the caller locates several batches.
 
     Raises
     ------
@@ -37,7 +39,8 @@ def locate(mesh: TriMesh, points: np.ndarray, candidates: int = 8) -> tuple[np.n
         When a point lies outside the triangulation.
     """
     points = np.asarray(points, dtype=float)
-    triangle, bary = TriangleLocator(mesh.points, mesh.triangles).locate(points, candidates)
+    locator = locator or TriangleLocator(mesh.points, mesh.triangles)
+    triangle, bary = locator.locate(points, candidates)
     outside = np.flatnonzero(triangle < 0)
     if len(outside):
         p = points[outside[0]]
@@ -66,7 +69,8 @@ def interpolation_matrix(problem, points: np.ndarray) -> sp.csr_matrix:
     points = np.asarray(points, dtype=float)
     # POINT_BLOCK points at a time: the candidate tets' Jacobians and coordinates take
     # about 1.2 kB per point (300 MB for the glove's finer-mesh check all at once).
-    parts = [_shape_values(problem, points[start:start + POINT_BLOCK])
+    locator = TriangleLocator(problem.mesh.mesh2d.points, problem.mesh.mesh2d.triangles)  # built once
+    parts = [_shape_values(problem, locator, points[start:start + POINT_BLOCK])
              for start in range(0, len(points), POINT_BLOCK)]
     tet = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, dtype=int)
     weights = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, problem.nodes.shape[1]))
@@ -78,12 +82,12 @@ def interpolation_matrix(problem, points: np.ndarray) -> sp.csr_matrix:
     return matrix
 
 
-def _shape_values(problem, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _shape_values(problem, locator: TriangleLocator, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The elastic tet containing each of ``points`` ``(n, 3)`` and its shape functions'
     values there ``(n, nb)`` (see :func:`interpolation_matrix`)."""
     mesh = problem.mesh
     n_tri = len(mesh.mesh2d.triangles)
-    triangle, _ = locate(mesh.mesh2d, points[:, :2])
+    triangle, _ = locate(mesh.mesh2d, points[:, :2], locator=locator)
     z = mesh.level_z_mm
     slab = np.clip(np.searchsorted(z, points[:, 2], side="right") - 1, 0, len(z) - 2)
     candidates = (slab * 3 * n_tri + 3 * triangle)[:, None] + np.arange(3)[None, :]  # (n, 3)
