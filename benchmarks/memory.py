@@ -49,12 +49,17 @@ def main() -> None:
     parser.add_argument("--csv", default=str(ROOT / "docs" / "memory.csv"))
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
+    from mscap.errors import MscapError
     from mscap.scene import load_scene
 
+    try:
+        k_max = {name: load_scene(str(ROOT / "jobs" / f"{name}.toml")).multistart.k_max for name in args.scenes}
+    except MscapError as exc:
+        sys.exit(f"benchmarks/memory.py: {exc}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenes:
-            k = load_scene(str(ROOT / "jobs" / f"{name}.toml")).multistart.k_max
+            k = k_max[name]
             mb, wall = peak_mb(name, k, args.max_iterations, Path(tmp) / f"{name}.h5")
             rows.append({"scene": name, "k": k, "max_iterations": args.max_iterations, "peak_MB": round(mb),
                          "wall_s": round(wall, 1)})
