@@ -26,11 +26,18 @@ import numpy as np
 
 from mscap.fem.profile import timed
 
-__all__ = ["Element", "P1", "P2", "element", "dof_table", "jacobians", "stiffness", "energy_vjp"]
+__all__ = ["Element", "P1", "P2", "element", "dof_table", "jacobians", "stiffness", "energy_vjp",
+           "index_type"]
 
 #: Elements per block in the vectorised kernels (bounds temporary memory, not a loop
 #: over elements: each block is processed by whole-array operations).
 BLOCK = 32768
+
+
+def index_type(largest: int) -> type:
+    """``np.int32`` for index arrays whose values stay below ``largest`` < 2³¹, else
+    ``np.int64``: the index arrays of a problem are most of its memory (docs/performance.md §9)."""
+    return np.int32 if largest < 2 ** 31 else np.int64
 
 #: The 6 edges of a tet as local vertex pairs; P2 edge node ``4 + e`` sits on edge ``e``.
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -391,3 +392,24 @@ def test_cli_passes_petsc_options(tmp_path):
                           "-electro_pc_factor_mat_solver_type", "mumps"],
                          capture_output=True, text=True, check=True)
     assert json.loads(run.stdout)["solver"] == "preonly/cholesky/mumps"
+
+
+# --- memory: int32 index arrays ----------------------------------------------------------
+
+def test_index_type_switches_to_int64_at_2_to_the_31():
+    assert fem.index_type(2 ** 31 - 1) is np.int32
+    assert fem.index_type(2 ** 31) is np.int64
+
+
+@ORDERS
+def test_index_arrays_are_int32_and_give_the_int64_capacitances(problems, two_plates, order):
+    # Index arrays are most of a problem's memory: on poking's 1.46 M tet finer-mesh check
+    # (k = 6) the electrostatic problem held 401 MB with int64 and 348 MB with int32
+    # indices (docs/performance.md §9). The narrower type must not change a bit.
+    problem = problems[order]
+    names = ("tets", "dofs", "indices", "entry_to_csr", "ff_entries", "ff_indices", "fd_entries", "fd_target", "free")
+    assert {name: getattr(problem, name).dtype for name in names} == {name: np.dtype(np.int32) for name in names}
+    wide = replace(problem, **{name: getattr(problem, name).astype(np.int64)
+                               for name in ("tets", "dofs", "indices", "ff_indices", "fd_target")})
+    x = perturbed(two_plates)
+    np.testing.assert_array_equal(es.solve(wide, x).capacitance_pF, es.solve(problem, x).capacitance_pF)

@@ -166,7 +166,7 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Elasti
     c, d = np.divmod(np.arange(9), 3)
     csr_of_block = (9 * node_ptr[rows][:, None] + 3 * c[None] * degree[rows][:, None]
                     + 3 * offset[:, None] + d[None]).ravel()
-    indices = np.empty(9 * len(unique), dtype=np.int64)
+    indices = np.empty(9 * len(unique), dtype=fem.index_type(3 * n_nodes))  # int32: 55 MB less on biaxial's check
     indices[csr_of_block] = (3 * cols[:, None] + d[None]).ravel()
     indptr = np.concatenate([[0], np.cumsum(np.repeat(3 * degree, 3))])
 
@@ -181,7 +181,8 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Elasti
                                      shape=(len(unique), len(pairs))))
     problem = ElasticProblem(mesh, order, nodes, rest, edges, rest_inv, rest_vol, mu, lam,
                              diag_block,
-                             indptr.astype(np.int64), indices, csr_of_block.astype(np.int64), force_scale,
+                             indptr.astype(np.int64), indices, csr_of_block.astype(fem.index_type(len(indices))),
+                             force_scale,
                              tuple(scatter))
     log.info("elastic P%d problem: %d nodes, %d dofs, %d nonzeros (%.2f s)", order, n_nodes,
              3 * n_nodes, len(indices), time.perf_counter() - started)
