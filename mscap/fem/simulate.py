@@ -22,8 +22,8 @@ from mscap.fem.petsc import LinearSolver, Operator
 from mscap.mesh.layered import LayeredMesh, mesh_elastic, mesh_scene
 from mscap.mesh.transfer import interpolation_matrix
 
-__all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibrium", "elastic_setup",
-           "electro_vertices"]
+__all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibria", "capacitances", "equilibrium",
+           "elastic_setup", "electro_vertices"]
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -106,26 +106,38 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     start = time.perf_counter()
     mesh = mesh or mesh_scene(scene)
     meshed = time.perf_counter()
-    electro = electrostatic.build_problem(mesh, scene.layers, order or scene.mesh.order)
+    electrostatic.check_plates(mesh)  # a bad layout fails now, not after the elastic solves
     problem, transfer = elastic_setup(scene, mesh, elastic_order)
+    sim = Simulation(scene.name, mesh, problem, None, (), {}, transfer)
+    # Every equilibrium first, then every capacitance: the elastic factorisation is freed
+    # before the electrostatic problem is built, so a simulation's peak memory is the larger
+    # of the two phases, not their sum (biaxial's finer-mesh check: P2 elasticity 420 MB).
     operator = Operator(problem) if problem is not None else None
-    solver = LinearSolver("electro_")
-    prepared = time.perf_counter()
-    sim = Simulation(scene.name, mesh, problem, electro, (), {}, transfer)
     try:
-        results = solve_poses(sim, scene, solver, operator, keep_factorisation=keep_factorisation,
-                              keep_fields=keep_fields, progress=progress)
+        states, elastic_s = equilibria(sim, scene, operator, keep_factorisation=keep_factorisation,
+                                       progress=progress)
     finally:  # PETSc objects free their memory only when destroyed
-        solver.destroy()
         if operator is not None:
             operator.destroy()
+    try:
+        sim = replace(sim, electro=electrostatic.build_problem(mesh, scene.layers, order or scene.mesh.order))
+        solver = LinearSolver("electro_")
+        try:
+            results = capacitances(sim, scene, states, elastic_s, solver, keep_fields=keep_fields,
+                                   progress=progress)
+        finally:
+            solver.destroy()
+    except BaseException:
+        _free(states)
+        raise
     end = time.perf_counter()
     elastic_s = sum(r.elastic_s for r in results)
     split = {key: sum(r.state.times[key] for r in results if r.state) for key in
              ("assembly", "factorisation", "solve", "line_search")}
     split["other"] = elastic_s - sum(split.values())
-    times = {"mesh": meshed - start, "setup": prepared - meshed, "elastic": elastic_s,
-             "electrostatic": sum(r.electrostatic_s for r in results), "total": end - start,
+    electrostatic_s = sum(r.electrostatic_s for r in results)
+    times = {"mesh": meshed - start, "setup": (end - meshed) - elastic_s - electrostatic_s,
+             "elastic": elastic_s, "electrostatic": electrostatic_s, "total": end - start,
              "elastic_split": split}
     return replace(sim, poses=results, times=times)
 
@@ -155,38 +167,71 @@ def solve_poses(sim: Simulation, scene: Scene, solver: LinearSolver, operator: O
                 keep_fields: bool = True, progress: Callable[[str], None] | None = None
                 ) -> tuple[PoseResult, ...]:
     """The forward loop: every pose of ``scene`` on ``sim``'s meshes (its own poses are
-    ignored): elastic equilibrium (warm from ``starts[i]`` when given), then capacitances.
+    ignored): :func:`equilibria` (warm from ``starts[i]`` when given), then
+    :func:`capacitances`.
 
     ``solver`` (electrostatic) and ``operator`` (elastic, ``None`` if every pose is free)
-    are reused across poses; the caller owns and destroys them. Without ``keep_fields`` a
-    result's ``capacitances.potentials`` and ``vertices`` are ``None``."""
+    are reused across poses; the caller owns and destroys them."""
+    states, elastic_s = equilibria(sim, scene, operator, starts, keep_factorisation, progress)
+    try:
+        return capacitances(sim, scene, states, elastic_s, solver, keep_fields, progress)
+    except BaseException:  # a failed pose (a rejected line-search trial): free what was kept
+        _free(states)
+        raise
+
+
+def equilibria(sim: Simulation, scene: Scene, operator: Operator | None,
+               starts: Sequence[np.ndarray | None] | None = None, keep_factorisation: bool = False,
+               progress: Callable[[str], None] | None = None) -> tuple[list, list]:
+    """Every pose's elastic equilibrium (``None`` for a free pose) and its seconds. On a
+    failure the factorisations kept so far are freed before the error propagates."""
     say = progress or (lambda message: None)
     starts = starts if starts is not None else [None] * len(scene.poses)
-    results, state = [], None
+    states, seconds = [], []
     try:
         for i, pose in enumerate(scene.poses):
             t0 = time.perf_counter()
-            state, vertices = None, sim.mesh.points
+            state = None
             if pose.kind != "free":
                 state = equilibrium(sim.elastic, pose, scene.elastic, operator, starts[i],
                                     keep_factorisation=keep_factorisation, progress=progress)
-                vertices = sim.vertices(state.nodes)
-            t1 = time.perf_counter()
-            caps = electrostatic.solve(sim.electro, vertices, solver=solver)
-            t2 = time.perf_counter()
-            if not keep_fields:
-                caps, vertices = replace(caps, potentials=None), None
-            results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, t1 - t0, t2 - t1))
-            state = None
-            say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: C = "
-                f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
-                f"(elastic {t1 - t0:.2f} s, electrostatic {t2 - t1:.2f} s)")
-    except BaseException:  # a failed pose (a rejected line-search trial): free what was kept
-        for kept in [r.state for r in results] + [state]:
-            if kept is not None and kept.operator is not None:
-                kept.operator.destroy()
+                say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: equilibrium in {state.load_steps} load steps, "
+                    f"{state.newton_iterations} Newton iterations ({time.perf_counter() - t0:.2f} s)")
+            states.append(state)
+            seconds.append(time.perf_counter() - t0)
+    except BaseException:
+        _free(states)
         raise
+    return states, seconds
+
+
+def capacitances(sim: Simulation, scene: Scene, states: Sequence[ElasticState | None], elastic_s: Sequence[float],
+                 solver: LinearSolver, keep_fields: bool = True,
+                 progress: Callable[[str], None] | None = None) -> tuple[PoseResult, ...]:
+    """Every pose's capacitances on ``sim.electro`` at the equilibria ``states`` (from
+    :func:`equilibria`). Without ``keep_fields`` a result's ``capacitances.potentials`` and
+    ``vertices`` are ``None``."""
+    say = progress or (lambda message: None)
+    results = []
+    for i, (pose, state) in enumerate(zip(scene.poses, states)):
+        vertices = sim.mesh.points if state is None else sim.vertices(state.nodes)
+        t1 = time.perf_counter()
+        caps = electrostatic.solve(sim.electro, vertices, solver=solver)
+        t2 = time.perf_counter()
+        if not keep_fields:
+            caps, vertices = replace(caps, potentials=None), None
+        results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, elastic_s[i], t2 - t1))
+        say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: C = "
+            f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
+            f"(elastic {elastic_s[i]:.2f} s, electrostatic {t2 - t1:.2f} s)")
     return tuple(results)
+
+
+def _free(states) -> None:
+    """Destroy the factorisations ``states`` kept (petsc4py frees native memory only then)."""
+    for state in states:
+        if state is not None and state.operator is not None:
+            state.operator.destroy()
 
 
 def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None):

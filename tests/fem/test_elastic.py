@@ -23,10 +23,11 @@ from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import Loading, NewtonSettings, solve_pose
 from mscap.fem.elastic.problem import ElasticError, assemble, build_problem, tet_fields, total_energy
 from mscap.fem.simulate import simulate
+from mscap.mesh.layered import extrude
 from mscap.scene import load_scene
 from mscap.scene.poses import StretchPose
 from mscap.testing import taylor_test
-from tests.conftest import to_toml
+from tests.conftest import grid_trimesh, to_toml
 from tests.scenes import (CARBON, CLEAR, STACK_MM, free_thickness_stretch, grid_mesh, poke_scene_dict, scene_dict,
                           stack, strained)
 
@@ -505,3 +506,50 @@ def test_bad_pose_names_file_key_and_value(write_scene, pose, key, message):
     assert info.value.path == str(path)
     assert info.value.key == f"poses[1].{key}"
     assert str(info.value) == f"{path}: poses[1].{key}: {message}"
+
+
+# --- memory: the elastic phase ends before the electrostatic one begins ----------------------
+
+def test_simulate_frees_the_elastic_solver_before_building_the_electrostatic_problem(tmp_path, monkeypatch):
+    # A simulation's peak is then the larger of its two phases, not their sum (biaxial's
+    # finer-mesh check: a 420 MB P2 MUMPS factorisation; docs/performance.md §9).
+    import mscap.fem.simulate as simulation
+
+    operators, seen = [], []
+
+    class Recorded(simulation.Operator):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.destroyed = False
+            operators.append(self)
+
+        def destroy(self):
+            self.destroyed = True
+            super().destroy()
+
+    build = es.build_problem
+
+    def build_problem(*args, **kwargs):
+        seen.append([op.destroyed for op in operators])
+        return build(*args, **kwargs)
+
+    monkeypatch.setattr(simulation, "Operator", Recorded)
+    monkeypatch.setattr(simulation.electrostatic, "build_problem", build_problem)
+    path = tmp_path / "poke.toml"
+    path.write_text(to_toml(poke_scene_dict()))
+    sim = simulate(load_scene(path))
+    assert seen == [[True]] and sim.poses[1].state.residual > 0
+
+
+def test_touching_plates_fail_before_any_elastic_solve(tmp_path, monkeypatch):
+    import mscap.fem.simulate as simulation
+
+    def equilibrium(*args, **kwargs):
+        raise AssertionError("an elastic solve ran before the layout was checked")
+
+    monkeypatch.setattr(simulation, "equilibrium", equilibrium)
+    path = tmp_path / "poke.toml"
+    path.write_text(to_toml(poke_scene_dict()))
+    touching = grid_trimesh(15, 15, 30.0, 30.0, lambda c: np.where(c[:, 0] < 15.0, 0, 1))
+    with pytest.raises(es.ElectrostaticError, match="plate of capacitor 0 and the bottom plate of capacitor 1 touch"):
+        simulate(load_scene(path), mesh=extrude(touching, STACK_MM))
