@@ -6,6 +6,8 @@ no contact unless a pose pokes, no surfaces unless a pose is glued.
 
 from __future__ import annotations
 
+import ctypes
+import gc
 import logging
 import time
 from dataclasses import dataclass, replace
@@ -23,7 +25,7 @@ from mscap.mesh.layered import LayeredMesh, mesh_elastic, mesh_scene
 from mscap.mesh.transfer import interpolation_matrix
 
 __all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibria", "capacitances", "equilibrium",
-           "elastic_setup", "electro_vertices"]
+           "elastic_setup", "electro_vertices", "release_freed_memory"]
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -119,6 +121,7 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     finally:  # PETSc objects free their memory only when destroyed
         if operator is not None:
             operator.destroy()
+    release_freed_memory()  # the elastic phase's temporaries, before the larger allocations
     try:
         sim = replace(sim, electro=electrostatic.build_problem(mesh, scene.layers, order or scene.mesh.order))
         solver = LinearSolver("electro_")
@@ -263,3 +266,15 @@ def _warn_p1_clamped_stretch(scene: Scene, order: int) -> None:
             log.warning("pose %s: P1 elements overestimate the capacitance of a clamped stretch "
                         "this large (grid3x3 at 100 %%: +8 %% at 5 mm, +1.3 %% at 1.5 mm elastic edges); "
                         "consider [elastic] order = 2 (docs/elastic.md)", pose.name)
+
+
+def release_freed_memory() -> None:
+    """Collect garbage and hand the heap's free pages back to the system (glibc's
+    ``malloc_trim``; nothing elsewhere). Freed numpy and PETSc memory stays in the process
+    otherwise: after a poking start (k = 6) the worker held 713 MB, of which trimming
+    returned 544 MB, and the finer-mesh check then grew from there."""
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass

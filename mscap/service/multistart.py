@@ -20,8 +20,6 @@ writes the selection and aborts the workers still busy.
 
 from __future__ import annotations
 
-import ctypes
-import gc
 import logging
 import math
 import time
@@ -29,6 +27,7 @@ import traceback
 from dataclasses import replace
 from typing import TYPE_CHECKING, Callable
 
+from mscap.fem.simulate import release_freed_memory
 from mscap.service.accuracy import estimate_error
 from mscap.design.readback import ReconstructionBound
 from mscap.service import farm
@@ -98,18 +97,6 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
                     config.id, type(exc).__name__, exc)
         return record
     return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s)
-
-
-def release_freed_memory() -> None:
-    """Collect garbage and hand the heap's free pages back to the system (glibc's
-    ``malloc_trim``; nothing elsewhere). Freed numpy and PETSc memory stays in the process
-    otherwise: after a poking start (k = 6) the worker held 713 MB, of which trimming
-    returned 544 MB, and the finer-mesh check then grew from there."""
-    gc.collect()
-    try:
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):  # not glibc
-        pass
 
 
 def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
