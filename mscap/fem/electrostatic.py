@@ -196,13 +196,12 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Electr
 
     # int32 indices where they fit (all but astronomically large meshes): 60 MB less on
     # a 1.46 M tet finer-mesh check.
-    dof_type = fem.index_type(max(n_dofs, n_dofs * 2 * k))
+    dof_type = fem.index_type(n_dofs * 2 * k)  # fd_target below reaches n_free · 2k
     tets = mesh.tets[~conductor].astype(dof_type)
     dofs = tets if order == 1 else all_dofs[~conductor].astype(dof_type)  # P1: the dofs are the vertices
     eps = permittivity_of_tets(mesh, layers)[~conductor]
     indptr, indices, entry_to_csr = _csr_pattern(dofs, n_dofs)
-    entry_type = fem.index_type(len(indices) + 1)
-    indptr, indices = indptr.astype(entry_type), indices.astype(dof_type)
+    entry_type, indices = indptr.dtype, indices.astype(dof_type, copy=False)
     csr_row = np.repeat(np.arange(n_dofs, dtype=dof_type), np.diff(indptr))
 
     is_free = plate_of_dof < 0
@@ -271,12 +270,15 @@ def _csr_pattern(dofs: np.ndarray, n_dofs: int) -> tuple[np.ndarray, np.ndarray,
         pattern = pattern + sp.csr_matrix((np.ones(len(rows), dtype=np.float32), (rows, cols)),
                                           shape=(n_dofs, n_dofs))
     pattern.sum_duplicates()  # also sorts the column indices of each row
-    indptr, indices = pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64)
+    # int32 where it fits (:func:`elements.index_type`): M nb² entries are the largest
+    # array of the problem (P1: 64 of its 160 bytes per tet); assemble() widens one block
+    # at a time.
+    entry_type = fem.index_type(pattern.nnz + 1)
+    indptr = pattern.indptr.astype(entry_type)
+    indices = pattern.indices.astype(fem.index_type(n_dofs))
     keys = np.repeat(np.arange(n_dofs, dtype=np.int64), np.diff(indptr)) * n_dofs + indices
     nb = dofs.shape[1]
-    # int32 where it fits: M nb² entries are the largest array of the problem (P1: 64 of
-    # its 160 bytes per tet); assemble() widens one block at a time.
-    entry_to_csr = np.empty(len(dofs) * nb * nb, dtype=fem.index_type(len(indices)))
+    entry_to_csr = np.empty(len(dofs) * nb * nb, dtype=entry_type)
     for start in range(0, len(dofs), fem.BLOCK):
         rows, cols = _element_entries(dofs[start:start + fem.BLOCK])
         entry_to_csr[start * nb * nb:start * nb * nb + len(rows)] = np.searchsorted(keys, rows.astype(np.int64) * n_dofs + cols)

@@ -124,15 +124,14 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     release_freed_memory()  # the elastic phase's temporaries, before the larger allocations
     try:
         sim = replace(sim, electro=electrostatic.build_problem(mesh, scene.layers, order or scene.mesh.order))
-        solver = LinearSolver("electro_")
-        try:
-            results = capacitances(sim, scene, states, elastic_s, solver, keep_fields=keep_fields,
-                                   progress=progress)
-        finally:
-            solver.destroy()
     except BaseException:
         _free(states)
         raise
+    solver = LinearSolver("electro_")
+    try:
+        results = capacitances(sim, scene, states, elastic_s, solver, keep_fields=keep_fields, progress=progress)
+    finally:
+        solver.destroy()
     end = time.perf_counter()
     elastic_s = sum(r.elastic_s for r in results)
     split = {key: sum(r.state.times[key] for r in results if r.state) for key in
@@ -176,11 +175,7 @@ def solve_poses(sim: Simulation, scene: Scene, solver: LinearSolver, operator: O
     ``solver`` (electrostatic) and ``operator`` (elastic, ``None`` if every pose is free)
     are reused across poses; the caller owns and destroys them."""
     states, elastic_s = equilibria(sim, scene, operator, starts, keep_factorisation, progress)
-    try:
-        return capacitances(sim, scene, states, elastic_s, solver, keep_fields, progress)
-    except BaseException:  # a failed pose (a rejected line-search trial): free what was kept
-        _free(states)
-        raise
+    return capacitances(sim, scene, states, elastic_s, solver, keep_fields, progress)
 
 
 def equilibria(sim: Simulation, scene: Scene, operator: Operator | None,
@@ -213,20 +208,25 @@ def capacitances(sim: Simulation, scene: Scene, states: Sequence[ElasticState | 
                  progress: Callable[[str], None] | None = None) -> tuple[PoseResult, ...]:
     """Every pose's capacitances on ``sim.electro`` at the equilibria ``states`` (from
     :func:`equilibria`). Without ``keep_fields`` a result's ``capacitances.potentials`` and
-    ``vertices`` are ``None``."""
+    ``vertices`` are ``None``. On a failure (e.g. an inverted tet at a rejected line-search
+    trial) the factorisations ``states`` kept are freed before the error propagates."""
     say = progress or (lambda message: None)
     results = []
-    for i, (pose, state) in enumerate(zip(scene.poses, states)):
-        vertices = sim.mesh.points if state is None else sim.vertices(state.nodes)
-        t1 = time.perf_counter()
-        caps = electrostatic.solve(sim.electro, vertices, solver=solver)
-        t2 = time.perf_counter()
-        if not keep_fields:
-            caps, vertices = replace(caps, potentials=None), None
-        results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, elastic_s[i], t2 - t1))
-        say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: C = "
-            f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
-            f"(elastic {elastic_s[i]:.2f} s, electrostatic {t2 - t1:.2f} s)")
+    try:
+        for i, (pose, state) in enumerate(zip(scene.poses, states)):
+            vertices = sim.mesh.points if state is None else sim.vertices(state.nodes)
+            t1 = time.perf_counter()
+            caps = electrostatic.solve(sim.electro, vertices, solver=solver)
+            t2 = time.perf_counter()
+            if not keep_fields:
+                caps, vertices = replace(caps, potentials=None), None
+            results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, elastic_s[i], t2 - t1))
+            say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: C = "
+                f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
+                f"(elastic {elastic_s[i]:.2f} s, electrostatic {t2 - t1:.2f} s)")
+    except BaseException:
+        _free(states)
+        raise
     return tuple(results)
 
 
