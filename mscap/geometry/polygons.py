@@ -10,7 +10,7 @@ import numpy as np
 __all__ = [
     "signed_area", "ccw", "edges", "segments_cross", "self_intersections",
     "points_in_polygon", "segment_projection", "point_segment_distance", "boundary_distance",
-    "polygons_intersect", "square", "disk", "rounded_square",
+    "polygons_intersect", "coarsened", "square", "disk", "rounded_square",
 ]
 
 
@@ -166,6 +166,35 @@ def polygons_intersect(p: np.ndarray, q: np.ndarray) -> bool:
     if segments_cross(edges(p), edges(q)).any():
         return True
     return bool(points_in_polygon(p[:1], q)[0] or points_in_polygon(q[:1], p)[0])
+
+
+def coarsened(polygon: np.ndarray, spacing: float, corner_deg: float = 30.0) -> np.ndarray:
+    """A subset of ``polygon``'s vertices about ``spacing`` apart along its perimeter, with
+    every corner (a turn sharper than ``corner_deg``) kept; at least 3 vertices.
+
+    Optimised outlines pass through every outline vertex of the electrostatic mesh
+    (0.075 mm apart on poking_cross); a mesh meant to resolve them at millimetres (the
+    elastic mesh) would otherwise embed them all. Every kept vertex lies on ``polygon``,
+    so the result deviates from it by the sagitta of a ``spacing`` chord at most
+    (``spacing² / 8R`` on a curve of radius R).
+    """
+    p = np.asarray(polygon, dtype=float)
+    if len(p) <= 3:
+        return p.copy()
+    step = np.roll(p, -1, axis=0) - p
+    length = np.linalg.norm(step, axis=1)
+    perimeter = float(length.sum())
+    before = np.roll(step, 1, axis=0)
+    turn = np.abs(np.arctan2(before[:, 0] * step[:, 1] - before[:, 1] * step[:, 0],
+                             np.einsum("ij,ij->i", before, step)))
+    keep = turn > np.radians(corner_deg)
+    at = np.concatenate([[0.0], np.cumsum(length)[:-1]])  # arc length of each vertex
+    n = max(3, int(np.ceil(perimeter / spacing)))
+    targets = np.arange(n) * (perimeter / n)
+    right = np.clip(np.searchsorted(at, targets), 0, len(p) - 1)
+    left = np.maximum(right - 1, 0)
+    keep[np.where(np.abs(at[left] - targets) <= np.abs(at[right] - targets), left, right)] = True
+    return p[keep]
 
 
 def _arc(center, radius, start, stop, spacing):

@@ -13,18 +13,24 @@ three tets below.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mscap.errors import GeometryError
 from mscap.fem.profile import timed
+from mscap.geometry.layout import Layout, check_layout
+from mscap.geometry.polygons import coarsened
 from mscap.mesh.triangulate import TriMesh
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["LayeredMesh", "extrude", "mesh_scene", "mesh_elastic", "level_heights", "layer_fractions",
+log = logging.getLogger(__name__)
+
+__all__ = ["LayeredMesh", "extrude", "mesh_scene", "mesh_elastic", "elastic_layout", "level_heights", "layer_fractions",
            "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
 
 #: Layer indices (bottom to top) of the two conductive layers.
@@ -209,12 +215,34 @@ def mesh_scene(scene: Scene) -> LayeredMesh:
 
 
 @timed("meshing")
+def elastic_layout(layout: Layout, sheet_outline_mm: np.ndarray, spacing_mm: float) -> Layout:
+    """``layout`` with every outline :func:`~mscap.geometry.polygons.coarsened` to the
+    elastic mesh's outline spacing, or ``layout`` itself if that would make the outlines
+    cross.
+
+    An optimised outline passes through every outline vertex of the electrostatic mesh
+    (0.075 mm apart), and gmsh keeps every polygon vertex as a mesh node: embedded as it
+    is, poking_cross's best k = 6 design gave a 21,070-node elastic mesh where 1,752 were
+    meant, and biaxial's finer-mesh check (P2) needed 2.8 GB (docs/performance.md §9).
+    """
+    coarse = Layout(tuple(coarsened(o, spacing_mm) for o in layout.outlines))
+    if all(len(c) == len(o) for c, o in zip(coarse.outlines, layout.outlines)):
+        return layout
+    try:
+        check_layout(coarse, sheet_outline_mm, 0.0)
+    except GeometryError as exc:
+        log.info("elastic mesh: the outlines coarsened to %g mm would not be valid (%s); "
+                 "embedding them as they are", spacing_mm, exc)
+        return layout
+    return coarse
+
+
 def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
     """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
-    "shared"``, else a triangulation with the same outlines embedded, so every tet lies
-    inside or outside a plate, at ``edge_length_mm`` (outlines: ``edge_length_outline_mm``,
-    default half), extruded in ``elements_through_thickness`` even slabs (0: the levels of
-    ``mesh``)."""
+    "shared"``, else a triangulation with the outlines embedded (:func:`elastic_layout`),
+    so every tet lies inside or outside a plate, at ``edge_length_mm`` (outlines:
+    ``edge_length_outline_mm``, default half), extruded in ``elements_through_thickness``
+    even slabs (0: the levels of ``mesh``)."""
     from dataclasses import replace
 
     from mscap.mesh.triangulate import triangulate
@@ -224,7 +252,7 @@ def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
         return mesh
     h = settings.edge_length_mm
     outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
-    mesh2d = triangulate(scene.sheet_outline_mm, scene.layout,
+    mesh2d = triangulate(scene.sheet_outline_mm, elastic_layout(scene.layout, scene.sheet_outline_mm, outline),
                          replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline))
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
                    slabs=settings.elements_through_thickness or None)

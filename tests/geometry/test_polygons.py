@@ -59,3 +59,39 @@ def test_min_gap_of_a_layout():
     assert min_gap_mm([left, geometry.square((17.0, 5.0), 4.0)], sheet) == pytest.approx(1.0, abs=1e-14)
     inner = geometry.square((5.0, 5.0), 1.0)  # inside ``left``: no boundary crosses, yet overlap
     assert min_gap_mm([left, inner], sheet) == 0.0
+
+
+def _densified(polygon, spacing):
+    """``polygon`` with every edge cut into pieces at most ``spacing`` long."""
+    out = []
+    for a, b in zip(polygon, np.roll(polygon, -1, axis=0)):
+        n = int(np.ceil(np.linalg.norm(b - a) / spacing))
+        out.append(a + np.linspace(0.0, 1.0, n, endpoint=False)[:, None] * (b - a))
+    return np.vstack(out)
+
+
+def test_coarsened_keeps_corners_and_drops_collinear_vertices():
+    square = geometry.square((10.0, 10.0), 18.0)
+    np.testing.assert_array_equal(geometry.coarsened(square, 2.5), square)  # nothing to drop
+    dense = _densified(square, 0.075)  # an optimised outline: every electrostatic outline vertex
+    coarse = geometry.coarsened(dense, 2.5)
+    assert len(dense) == 960 and 29 <= len(coarse) <= 33  # 72 mm perimeter / 2.5 mm, plus corners
+    for corner in square:  # corners survive exactly, and every kept vertex is one of the originals
+        assert np.any(np.all(coarse == corner, axis=1))
+    assert np.all(np.any(np.all(coarse[:, None] == dense[None], axis=2), axis=1))
+    assert abs(geometry.signed_area(coarse) - 18.0 ** 2) < 1e-9  # collinear vertices: area exact
+
+
+def test_coarsened_circle_deviates_by_the_sagitta():
+    # A circle of radius R sampled 0.075 mm apart, coarsened to 2.5 mm: the chords cut
+    # inside by at most s² / 8R (s the longest chord).
+    r, spacing = 9.0, 2.5
+    dense = geometry.disk((0.0, 0.0), 2 * r, 0.075)
+    coarse = geometry.coarsened(dense, spacing)
+    chord = np.linalg.norm(np.roll(coarse, -1, axis=0) - coarse, axis=1)
+    assert len(coarse) == int(np.ceil(2 * np.pi * r / spacing)) and chord.max() < 1.05 * spacing
+    apothem = np.sqrt(r ** 2 - (chord / 2) ** 2)
+    assert r - apothem.min() <= 1.01 * chord.max() ** 2 / (8 * r)  # 0.085 mm
+    area = abs(geometry.signed_area(coarse))
+    # An inscribed polygon of chord angles θ_i = s_i / R loses a fraction ≈ θ² / 6 of the area.
+    assert 0 < 1 - area / abs(geometry.signed_area(dense)) <= 1.01 * (chord.max() / r) ** 2 / 6  # 1.2 %

@@ -16,7 +16,10 @@ from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import NewtonSettings, solve_pose
 from mscap.fem.elastic.problem import build_problem, total_energy
 from mscap.fem.simulate import simulate
-from mscap.mesh.layered import extrude, layer_fractions, mesh_elastic, mesh_scene
+from mscap.errors import GeometryError
+from mscap.geometry.layout import Layout, check_layout
+from mscap.geometry.polygons import coarsened, square
+from mscap.mesh.layered import elastic_layout, extrude, layer_fractions, mesh_elastic, mesh_scene
 from mscap.mesh import transfer
 from mscap.mesh.transfer import interpolation_matrix, locate
 from mscap.scene import load_scene
@@ -246,3 +249,42 @@ def test_p1_clamped_large_stretch_warns(small_scene_dict, write_scene, caplog, o
         _warn_p1_clamped_stretch(scene, order)
         _warn_p1_clamped_stretch(scene, order)      # once per scene and pose: optimisers rebuild
     assert caplog.text.count("pose pull: P1 elements overestimate") == int(warned)
+
+
+def test_elastic_mesh_does_not_embed_every_vertex_of_an_optimised_outline(small_scene_dict, write_scene):
+    # An optimised outline passes through every electrostatic outline vertex (0.5 mm apart
+    # here); the elastic mesh (6 mm, outlines 3 mm) is built on the outlines coarsened to
+    # its own spacing, so it has about the nodes of the scene's 4-vertex outlines.
+    small_scene_dict["elastic"] = {"edge_length_mm": 6.0}
+    scene = load_scene(write_scene(small_scene_dict))
+    dense = Layout(tuple(np.vstack([a + np.linspace(0, 1, int(np.ceil(np.linalg.norm(b - a) / 0.05)),
+                                                    endpoint=False)[:, None] * (b - a)
+                                    for a, b in zip(o, np.roll(o, -1, axis=0))]) for o in scene.layout.outlines))
+    assert min(len(o) for o in dense.outlines) > 600
+    mesh = mesh_scene(scene)
+    plain = mesh_elastic(scene, mesh)
+    optimised = mesh_elastic(dataclasses.replace(scene, layout=dense), mesh)
+    assert len(optimised.mesh2d.points) < 1.3 * len(plain.mesh2d.points)
+    for m in (plain, optimised):  # both still embed the plates exactly (straight edges)
+        areas = m.mesh2d.areas()
+        np.testing.assert_allclose([areas[m.mesh2d.capacitor_of_triangle == j].sum() for j in range(2)],
+                                   [120.0, 84.0], rtol=1e-12)
+
+
+def test_elastic_layout_keeps_outlines_that_coarsening_would_make_cross():
+    # A plate with a concave bite (an arc of radius 8 mm, sampled 0.05 mm apart) around an
+    # octagon 0.05 mm from the arc at its corners: the chords of the coarsened arc sag
+    # 0.39 mm into the bite and would cut the octagon, so the outlines stay as they are.
+    t = np.linspace(1.5 * np.pi, 0.5 * np.pi, 503)  # (25, 2) round by (17, 10) to (25, 18)
+    bite = np.column_stack([25.0 + 8.0 * np.cos(t), 10.0 + 8.0 * np.sin(t)])
+    plate = np.vstack([[[0.0, 0.0], [25.0, 0.0]], bite, [[25.0, 20.0], [0.0, 20.0]]])
+    a = 2 * np.pi * np.arange(8) / 8 + np.pi / 8
+    octagon = np.column_stack([25.0 + 7.95 * np.cos(a), 10.0 + 7.95 * np.sin(a)])
+    sheet = square((20.0, 10.0), 60.0)
+    layout = Layout((plate, octagon))
+    check_layout(layout, sheet, 0.0)
+    coarse = Layout(tuple(coarsened(o, 5.0) for o in layout.outlines))
+    with pytest.raises(GeometryError):
+        check_layout(coarse, sheet, 0.0)
+    assert elastic_layout(layout, sheet, 5.0) is layout
+    assert len(plate) == 507 and len(elastic_layout(Layout((plate,)), sheet, 5.0).outlines[0]) < 30
