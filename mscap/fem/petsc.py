@@ -101,9 +101,10 @@ class LinearSolver:
         Options prefix such as ``"electro_"``; defaults come from :data:`DEFAULTS`.
     """
 
-    def __init__(self, prefix: str):
+    def __init__(self, prefix: str, out_of_core: bool = False):
         PETSc = petsc()
         self.prefix = prefix
+        self.out_of_core = out_of_core
         self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
         self.ksp.setOptionsPrefix(prefix)
         defaults = DEFAULTS.get(prefix, {})
@@ -142,7 +143,22 @@ class LinearSolver:
             own.mat.assemble()  # bumps the matrix state: a numeric refactorisation follows
         with section("factorisation"):
             self.ksp.setOperators(own.mat)
+            if self.out_of_core:
+                self._mumps_out_of_core()
             self.ksp.setUp()
+
+    def _mumps_out_of_core(self) -> None:
+        """Let MUMPS keep its factors on disk (``ICNTL(22) = 1``, in ``$MUMPS_OOC_TMPDIR``,
+        default ``/tmp``) unless the command line says otherwise; other solvers ignore it."""
+        PETSc = petsc()
+        pc = self.ksp.getPC()
+        if pc.getType() not in ("cholesky", "lu"):
+            return
+        if PETSc.Options().hasName(f"{self.prefix}mat_mumps_icntl_22"):
+            return
+        pc.setFactorSetUpSolverType()
+        if pc.getFactorSolverType() == "mumps":
+            pc.getFactorMatrix().setMumpsIcntl(22, 1)
 
     def solve(self, rhs):
         """Solve for one right-hand side ``(n,)`` or several ``(n, m)`` columns."""
@@ -179,12 +195,13 @@ class Operator:
     changes, so every factorisation after the first is numeric only
     (:meth:`~mscap.fem.petsc.LinearSolver.set_csr` keeps the symbolic one)."""
 
-    def __init__(self, problem, prefix: str = "elastic_"):
+    def __init__(self, problem, prefix: str = "elastic_", out_of_core: bool = False):
         """``problem``: anything with a CSR pattern ``indices``, ``indptr`` and ``n_dofs``
-        (an :class:`~mscap.fem.elastic.problem.ElasticProblem`)."""
+        (an :class:`~mscap.fem.elastic.problem.ElasticProblem`); ``out_of_core``: MUMPS
+        factors on disk (:meth:`LinearSolver._mumps_out_of_core`)."""
         self._pattern = (problem.indices, problem.indptr)
         self._shape = (problem.n_dofs, problem.n_dofs)
-        self.solver = LinearSolver(prefix)
+        self.solver = LinearSolver(prefix, out_of_core)
 
     def factorise(self, data: np.ndarray) -> None:
         """Factorise the matrix with CSR values ``data``; a failed factorisation raises

@@ -86,7 +86,7 @@ def electro_vertices(mesh: LayeredMesh, problem: ElasticProblem, transfer, nodes
 
 def simulate(scene: Scene, order: int | None = None, elastic_order: int | None = None,
              mesh: LayeredMesh | None = None, keep_factorisation: bool = False, keep_fields: bool = True,
-             progress: Callable[[str], None] | None = None) -> Simulation:
+             elastic_out_of_core: bool = False, progress: Callable[[str], None] | None = None) -> Simulation:
     """Simulate every pose of ``scene``.
 
     Parameters
@@ -102,6 +102,9 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     keep_fields
         Keep each pose's potentials and moved vertices; without them a pose result holds
         its capacitances only (the finer-mesh check: 220 MB less on the glove's 16 poses).
+    elastic_out_of_core
+        MUMPS keeps the elastic factors on disk (the finer-mesh check: biaxial's P2
+        factorisation, docs/performance.md §9).
     progress
         Called with one-line progress messages.
     """
@@ -114,7 +117,7 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     # Every equilibrium first, then every capacitance: the elastic factorisation is freed
     # before the electrostatic problem is built, so a simulation's peak memory is the larger
     # of the two phases, not their sum (biaxial's finer-mesh check: P2 elasticity 420 MB).
-    operator = Operator(problem) if problem is not None else None
+    operator = Operator(problem, out_of_core=elastic_out_of_core) if problem is not None else None
     try:
         states, elastic_s = equilibria(sim, scene, operator, keep_factorisation=keep_factorisation,
                                        progress=progress)

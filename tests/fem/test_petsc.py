@@ -80,3 +80,27 @@ def test_set_csr_refactorises_new_values_on_the_same_matrix():
     assert solver._own.mat is not matrices[0]
     np.testing.assert_allclose(wider @ solver.solve(b), b, atol=1e-12)
     solver.destroy()
+
+
+def test_out_of_core_factors_solve_like_in_core_ones(tmp_path, monkeypatch):
+    """``out_of_core``: MUMPS writes its factors to $MUMPS_OOC_TMPDIR (ICNTL(22) = 1) and
+    solves an indefinite symmetric system (an elastic Hessian can be one) as in core,
+    over refactorisations on the same pattern."""
+    from mscap.fem.petsc import LinearSolver
+
+    monkeypatch.setenv("MUMPS_OOC_TMPDIR", str(tmp_path))
+    n = 400
+    rng = np.random.default_rng(2)
+    b = rng.normal(size=(n, 2))
+    solvers = {ooc: LinearSolver("elastic_", out_of_core=ooc) for ooc in (False, True)}
+    for diagonal in (2.5, -0.3):  # the second is indefinite
+        a = sp.diags([-np.ones(n - 1), diagonal * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsr()
+        x = {}
+        for ooc, solver in solvers.items():
+            solver.set_csr(a)
+            x[ooc] = solver.solve(b)
+            assert solver.ksp.getPC().getFactorMatrix().getMumpsIcntl(22) == int(ooc)
+        np.testing.assert_allclose(a @ x[True], b, atol=1e-10)
+        np.testing.assert_allclose(x[True], x[False], rtol=1e-12, atol=1e-12)
+    for solver in solvers.values():
+        solver.destroy()
