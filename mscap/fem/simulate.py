@@ -25,7 +25,7 @@ from mscap.mesh.layered import LayeredMesh, mesh_elastic, mesh_scene
 from mscap.mesh.transfer import interpolation_matrix
 
 __all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibria", "capacitances", "equilibrium",
-           "elastic_setup", "electro_vertices", "release_freed_memory"]
+           "elastic_setup", "elastic_transfer", "electro_vertices", "release_freed_memory"]
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -112,8 +112,10 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     mesh = mesh or mesh_scene(scene)
     meshed = time.perf_counter()
     electrostatic.check_plates(mesh)  # a bad layout fails now, not after the elastic solves
-    problem, transfer = elastic_setup(scene, mesh, elastic_order)
-    sim = Simulation(scene.name, mesh, problem, None, (), {}, transfer)
+    # The transfer to the electrostatic vertices is built after the elastic phase (35 MB on
+    # biaxial's finer-mesh check); the elastic solves do not need it.
+    problem, _ = elastic_setup(scene, mesh, elastic_order, transfer=False)
+    sim = Simulation(scene.name, mesh, problem, None, (), {}, None)
     # Every equilibrium first, then every capacitance: the elastic factorisation is freed
     # before the electrostatic problem is built, so a simulation's peak memory is the larger
     # of the two phases, not their sum (biaxial's finer-mesh check: P2 elasticity 420 MB).
@@ -126,7 +128,8 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
             operator.destroy()
     release_freed_memory()  # the elastic phase's temporaries, before the larger allocations
     try:
-        sim = replace(sim, electro=electrostatic.build_problem(mesh, scene.layers, order or scene.mesh.order))
+        sim = replace(sim, transfer=elastic_transfer(problem, mesh),
+                      electro=electrostatic.build_problem(mesh, scene.layers, order or scene.mesh.order))
     except BaseException:
         _free(states)
         raise
@@ -240,17 +243,24 @@ def _free(states) -> None:
             state.operator.destroy()
 
 
-def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None):
+def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None, transfer: bool = True):
     """The elastic problem the scene's poses need (``None`` if every pose is free) on the
-    scene's elastic mesh, and the transfer to ``mesh``'s vertices (``None`` when shared)."""
+    scene's elastic mesh, and the transfer to ``mesh``'s vertices (``None`` when shared or
+    not asked for: :func:`elastic_transfer` builds it later)."""
     if all(p.kind == "free" for p in scene.poses):
         return None, None
     order = order or scene.elastic.order
     _warn_p1_clamped_stretch(scene, order)
-    elastic_mesh = mesh_elastic(scene, mesh)
-    problem = build_problem(elastic_mesh, scene.layers, order)
-    transfer = None if elastic_mesh is mesh else interpolation_matrix(problem, mesh.points)
-    return problem, transfer
+    problem = build_problem(mesh_elastic(scene, mesh), scene.layers, order)
+    return problem, elastic_transfer(problem, mesh) if transfer else None
+
+
+def elastic_transfer(problem: ElasticProblem | None, mesh: LayeredMesh):
+    """The interpolation from ``problem``'s nodes to ``mesh``'s vertices (``None`` when
+    there is no problem or it is on ``mesh`` itself)."""
+    if problem is None or problem.mesh is mesh:
+        return None
+    return interpolation_matrix(problem, mesh.points)
 
 
 _P1_WARNED: set[tuple[str, str]] = set()

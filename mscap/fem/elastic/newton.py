@@ -292,12 +292,15 @@ class _Pose:
                 return None
             finally:
                 self.ball = ball
-        try:
-            self.factorise(raw.copy())
-        except LinearSolveError:
-            return None
         full = sp.csr_matrix((raw, self.problem.indices, self.problem.indptr), shape=(self.problem.n_dofs,) * 2)
         rhs = -(full @ delta.ravel()).reshape(-1, 3)
+        # Factorised in place: the Hessian is not needed again (a retry reassembles), and
+        # holding it through the next step's Newton iterations cost 55 MB on biaxial's check.
+        self.final_hessian = None
+        try:
+            self.factorise(raw)
+        except LinearSolveError:
+            return None
         rhs[self.fixed] = 0.0
         start = time.perf_counter()
         step = self.op.solve(rhs.ravel()).reshape(-1, 3)
