@@ -113,7 +113,9 @@ class LinearSolver:
         pc.setType(defaults.get("pc_type", "cholesky"))
         if "pc_factor_mat_solver_type" in defaults:
             pc.setFactorSolverType(defaults["pc_factor_mat_solver_type"])
-        self.ksp.setFromOptions()
+        if out_of_core:  # only MUMPS factorises out of core (CHOLMOD cannot)
+            pc.setFactorSolverType("mumps")
+        self.ksp.setFromOptions()  # the command line still decides
         self._own: _Wrapped | None = None  # the matrix set_csr made, and its arrays
 
     def set_csr(self, matrix, spd: bool = False) -> None:
@@ -149,7 +151,8 @@ class LinearSolver:
 
     def _mumps_out_of_core(self) -> None:
         """Let MUMPS keep its factors on disk (``ICNTL(22) = 1``, in ``$MUMPS_OOC_TMPDIR``,
-        default ``/tmp``) unless the command line says otherwise; other solvers ignore it."""
+        default ``/tmp``) unless the command line says otherwise (``out_of_core`` also made
+        MUMPS the default factor package; a command-line one is left alone)."""
         PETSc = petsc()
         pc = self.ksp.getPC()
         if pc.getType() not in ("cholesky", "lu"):

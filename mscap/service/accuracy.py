@@ -69,9 +69,9 @@ def estimate_error(scene: Scene, layout, capacitance_pF: np.ndarray) -> ErrorEst
     from mscap.fem.simulate import simulate
 
     start = time.perf_counter()
-    # Only C is compared; the elastic factors go to disk (biaxial's P2 check: 1,116 -> 869 MB
-    # peak for 1.18x its time, docs/performance.md §9).
-    sim = simulate(replace(finer(scene), layout=layout), keep_fields=False, elastic_out_of_core=True)
+    # Only C is compared; the factors go to disk (biaxial's check: 1,116 -> 869 MB for 1.18x
+    # its time; pneumatic's: 786 -> 674 MB for 1.29x; docs/performance.md §9).
+    sim = simulate(replace(finer(scene), layout=layout), keep_fields=False, out_of_core=True)
     fine = sim.capacitance_pF
     return ErrorEstimate(fine, relative_difference(capacitance_pF, fine), min_pairwise_l1(fine),
                          time.perf_counter() - start)

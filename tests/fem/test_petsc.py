@@ -104,3 +104,24 @@ def test_out_of_core_factors_solve_like_in_core_ones(tmp_path, monkeypatch):
         np.testing.assert_allclose(x[True], x[False], rtol=1e-12, atol=1e-12)
     for solver in solvers.values():
         solver.destroy()
+
+
+def test_out_of_core_electrostatics_switch_to_mumps(tmp_path, monkeypatch):
+    """CHOLMOD (the electrostatic default) has no out-of-core mode: ``out_of_core`` makes
+    the factor package MUMPS, whose solution agrees with CHOLMOD's to round-off."""
+    from mscap.fem.petsc import LinearSolver
+
+    monkeypatch.setenv("MUMPS_OOC_TMPDIR", str(tmp_path))
+    n = 300
+    a = sp.diags([-np.ones(n - 1), 2.5 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsr()
+    b = np.random.default_rng(3).normal(size=(n, 3))
+    x = {}
+    for ooc in (False, True):
+        solver = LinearSolver("electro_", out_of_core=ooc)
+        solver.set_csr(a, spd=True)
+        x[ooc] = solver.solve(b)
+        assert solver.description == ("preonly/cholesky/mumps" if ooc else "preonly/cholesky/cholmod")
+        if ooc:
+            assert solver.ksp.getPC().getFactorMatrix().getMumpsIcntl(22) == 1
+        solver.destroy()
+    np.testing.assert_allclose(x[True], x[False], rtol=1e-12, atol=1e-13)
