@@ -214,7 +214,6 @@ def mesh_scene(scene: Scene) -> LayeredMesh:
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer)
 
 
-@timed("meshing")
 def elastic_layout(layout: Layout, sheet_outline_mm: np.ndarray, spacing_mm: float) -> Layout:
     """``layout`` with every outline :func:`~mscap.geometry.polygons.coarsened` to the
     elastic mesh's outline spacing, or ``layout`` itself if that would make the outlines
@@ -237,6 +236,7 @@ def elastic_layout(layout: Layout, sheet_outline_mm: np.ndarray, spacing_mm: flo
     return coarse
 
 
+@timed("meshing")
 def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
     """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
     "shared"``, else a triangulation with the outlines embedded (:func:`elastic_layout`),
