@@ -19,6 +19,9 @@ def add_parser(sub) -> None:
     p.add_argument("--prune", metavar="STEP:ETA",
                    help="prune dominated starts from STEP accepted steps on, keeping the best 1/ETA at "
                         "each rung (0 disables; default: the scene's prune_first_step, prune_eta)")
+    p.add_argument("--keep-repeated-starts", action="store_true",
+                   help="also run the Lloyd starts whose initial layout repeats an earlier start of their k "
+                        "(skipped by default: they differ only by the plates' numbering)")
     p.add_argument("--max-iterations", type=int, help="L-BFGS iterations per level (default: the scene's)")
     p.add_argument("--force", action="store_true", help="start the file over even if it holds another scene")
     p.add_argument("--retry-failed", action="store_true", help="run the starts stored as failed again")
@@ -35,7 +38,7 @@ def run(args) -> int:
     from mscap.scene.loader import with_overrides
 
     comm = MPI.COMM_WORLD
-    scene = with_overrides(load_scene_for(args), args.starts_per_k, args.prune)
+    scene = with_overrides(load_scene_for(args), args.starts_per_k, args.prune, args.keep_repeated_starts)
     index_of = {c.id: i % max(scene.multistart.starts_per_k, 1) for i, c in enumerate(configurations(scene))}
     lo, hi = 0, None
     if args.seeds:

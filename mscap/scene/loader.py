@@ -385,10 +385,13 @@ def select_poses(scene: Scene, names: list[str]) -> Scene:
     return replace(scene, poses=tuple(p for p in scene.poses if p.name in names))
 
 
-def with_overrides(scene: Scene, starts_per_k: int | None = None, prune: str | None = None) -> Scene:
+def with_overrides(scene: Scene, starts_per_k: int | None = None, prune: str | None = None,
+                   keep_repeated_starts: bool = False) -> Scene:
     """``scene`` with ``[multistart]`` values from the command line (``mscap run
-    --starts-per-k N --prune STEP:ETA``), checked like the file's."""
+    --starts-per-k N --prune STEP:ETA --keep-repeated-starts``), checked like the file's."""
     changes = {}
+    if keep_repeated_starts:
+        changes["skip_repeated_starts"] = False
     if starts_per_k is not None:
         changes["starts_per_k"] = starts_per_k
     if prune is not None:

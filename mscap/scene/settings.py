@@ -170,8 +170,11 @@ class MultistartSettings:
     ``plateau_tol``; ``error_estimate``: re-simulate every run's final design on a mesh
     one level finer (:mod:`mscap.service.accuracy`). Pruning (:mod:`mscap.service.pruning`):
     after ``prune_first_step`` accepted steps, and again after ``prune_eta`` times as many,
-    a start whose J is not among the best 1/``prune_eta`` of the starts of its k at that
-    step stops (status ``"pruned"``); ``prune_first_step = 0`` (the default) never prunes."""
+    a start whose score (min L1 distance, or read-back bound) is not among the best
+    1/``prune_eta`` of the starts of its k at that step stops (status ``"pruned"``);
+    ``prune_first_step = 0`` (the default) never prunes. ``skip_repeated_starts``: leave
+    out the Lloyd starts whose initial layout repeats an earlier one of their k
+    (:func:`mscap.service.selection.repeated_starts`)."""
 
     k_min: int = 2
     k_max: int = 6
@@ -182,6 +185,7 @@ class MultistartSettings:
     error_estimate: bool = True
     prune_first_step: int = 0
     prune_eta: int = 3
+    skip_repeated_starts: bool = True
 
 
 @dataclass(frozen=True)

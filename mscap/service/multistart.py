@@ -1,8 +1,9 @@
 """The multi-start service: many optimisation starts farmed out over MPI, one HDF5 file.
 
 Rank 0 is the master: it opens the store (:mod:`mscap.service.store`), lists the start
-configurations the file does not hold yet (:func:`mscap.service.selection.configurations`) and
-hands them out one at a time; every other rank is a worker that runs one start
+configurations the file does not hold yet (:func:`mscap.service.selection.configurations`,
+less the Lloyd starts that repeat an earlier start's layout,
+:func:`~mscap.service.selection.repeated_starts`) and hands them out one at a time; every other rank is a worker that runs one start
 (:func:`run_start`) on ``PETSc.COMM_SELF`` and sends back a :class:`~mscap.service.store.RunRecord`.
 Scheduling is dynamic — a worker gets the next configuration as soon as it returns one —
 and only the master writes, flushing after every run, so a killed job loses at most the
@@ -32,7 +33,7 @@ from mscap.service.accuracy import estimate_error
 from mscap.design.readback import ReconstructionBound
 from mscap.service import farm
 from mscap.service.pruning import PruneRule, Rungs, Verdict, rung_values, score, score_kind
-from mscap.service.selection import StartConfig, configurations, select
+from mscap.service.selection import StartConfig, configurations, repeated_starts, select
 from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
     write_selection
 
@@ -143,8 +144,10 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
     done = failed = 0
     try:
         finished = finished_ids(store, failed=not retry_failed)
-        todo = [c for c in configurations(scene)
-                if c.id not in finished and (select_configs is None or select_configs(c))]
+        configs = configurations(scene)
+        repeats = repeated_starts(scene, configs) if scene.multistart.skip_repeated_starts else {}
+        todo = [c for c in configs
+                if c.id not in finished and c.id not in repeats and (select_configs is None or select_configs(c))]
         # Longest first: a start's cost grows with k, and handing out the big ones first
         # leaves the short ones to fill the tail (jobs/quick.toml on 2 workers: busy
         # fraction 0.88 → 0.94, docs/performance.md §4). Results do not depend on the order.
@@ -152,6 +155,12 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         total, started = len(todo), time.perf_counter()
         say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
             f"worker{'s' if size > 2 else ''}")
+        by_id = {c.id: c for c in configs}
+        skipped = [f"{rid} (= {first})" for rid, first in repeats.items()
+                   if rid not in finished and (select_configs is None or select_configs(by_id[rid]))]
+        if skipped:
+            say(f"skipped {len(skipped)} Lloyd start{'s' if len(skipped) > 1 else ''} whose initial layout repeats "
+                f"an earlier start of its k: {', '.join(skipped)}")
         rungs = stored_rungs(store, PruneRule.from_settings(scene.multistart), score_kind(scene))
 
         def record(rec) -> None:

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
 __all__ = ["StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS",
-           "run_id", "configurations", "choose_k", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
+           "run_id", "configurations", "repeated_starts", "choose_k", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
 
 #: The ``init`` kinds the multi-start schedules, in order (:func:`configurations`: Lloyd
 #: starts first, then random ones); a subset of :data:`mscap.geometry.initial.LAYOUT_INITS`.
@@ -66,6 +66,44 @@ def configurations(scene: Scene) -> list[StartConfig]:
     n_lloyd = min(n, math.ceil(round(ms.lloyd_fraction * n, 9)))
     return [StartConfig(k, ms.seed * 1_000_000 + k * 1000 + index, "lloyd" if index < n_lloyd else "random")
             for k in range(ms.k_min, ms.k_max + 1) for index in range(n)]
+
+
+def repeated_starts(scene: Scene, configs: Sequence[StartConfig] | None = None) -> dict[str, str]:
+    """Lloyd starts whose initial layout repeats that of an earlier Lloyd start of the same
+    k: ``{id: id of the first start with that layout}``.
+
+    Lloyd's relaxation on a grid ends in one of few centroidal tessellations, so different
+    seeds often give the same sites, sometimes numbered in another order (8 Lloyd starts per
+    k on ``jobs/poking_cross_quick.toml``: 6, 5 and 8 distinct layouts at k = 2, 3, 4).
+    Plates are compared as a set (sorted by centroid) to 1e-9 of the sheet's size. A
+    repeat in the same plate order would give the same run bit for bit; in another order
+    only gmsh's numbering differs, which moved the final metric by 0.8 % there, within
+    the run's 1.3 % finer-mesh error (docs/performance.md §8). The multi-start skips
+    repeats. This depends on the scene alone, so every array task of a split job agrees.
+    Random starts are not compared: two seeds give the same layout with probability 0.
+    """
+    import numpy as np
+
+    from mscap.geometry.initial import initial_layout
+
+    configs = configurations(scene) if configs is None else configs
+    size = float(np.ptp(scene.sheet_outline_mm, axis=0).max())
+    seen: dict[int, list[tuple[np.ndarray, str]]] = {}
+    out = {}
+    for c in configs:
+        if c.init != "lloyd":
+            continue
+        plates = initial_layout(scene, c.k, c.seed, c.init).outlines
+        centres = np.array([p.mean(axis=0) for p in plates])
+        order = np.lexsort((centres[:, 1], centres[:, 0]))
+        key = np.concatenate([np.asarray(plates[i], dtype=float).ravel() for i in order])
+        for other, other_id in seen.setdefault(c.k, []):
+            if other.shape == key.shape and np.abs(other - key).max() <= 1e-9 * size:
+                out[c.id] = other_id
+                break
+        else:
+            seen[c.k].append((key, c.id))
+    return out
 
 
 @dataclass(frozen=True)

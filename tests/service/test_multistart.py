@@ -197,6 +197,43 @@ def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_pat
     assert all(read_run(store, rid).ok for rid in finished_ids(store)) and len(finished_ids(store)) == 4
 
 
+def test_lloyd_starts_that_repeat_a_layout_are_skipped(tmp_path, monkeypatch):
+    """Ten Lloyd starts at k = 2 on the 30 × 20 mm sheet give two layouts: the master runs
+    those two and says which starts it skipped and why; a rerun skips them again;
+    ``--keep-repeated-starts`` runs them all."""
+    from mpi4py import MPI
+
+    from mscap.scene import load_scene
+    from mscap.scene.loader import with_overrides
+    from mscap.service import multistart
+    from mscap.service.selection import repeated_starts
+    from mscap.service.store import failed_record
+
+    data = tiny_scene()
+    data["multistart"] = {"k_min": 2, "k_max": 2, "starts_per_k": 10, "lloyd_fraction": 1.0}
+    path = tmp_path / "lloyd.toml"
+    path.write_text(to_toml(data))
+    scene = load_scene(path)
+    repeats = repeated_starts(scene)
+    ran, lines = [], []
+    monkeypatch.setattr(multistart, "run_start", lambda s, c, *a, **k: ran.append(c.id)
+                        or failed_record(c.k, c.seed, c.init, "not run (test)", 0.0, 0))
+    out = str(tmp_path / "lloyd.h5")
+    summary = multistart.run_multistart(scene, out, MPI.COMM_SELF, progress=lines.append)
+    assert len(ran) == 10 - len(repeats) == 2 and not set(ran) & set(repeats)
+    assert summary["runs_done"] == 2
+    skipped = next(line for line in lines if line.startswith("skipped"))
+    assert f"skipped {len(repeats)} Lloyd starts" in skipped and "k2_s2002_lloyd (= k2_s2000_lloyd)" in skipped
+    ran.clear()
+    multistart.run_multistart(scene, out, MPI.COMM_SELF, retry_failed=True, progress=lines.append)
+    assert len(ran) == 2 and not set(ran) & set(repeats)
+    # mscap run --keep-repeated-starts runs all ten.
+    ran.clear()
+    keep = with_overrides(scene, keep_repeated_starts=True)
+    multistart.run_multistart(keep, str(tmp_path / "all.h5"), MPI.COMM_SELF, progress=lines.append)
+    assert len(ran) == 10
+
+
 def session_members(sid: int) -> list[int]:
     """Live processes of session ``sid`` (zombies, already dead, left out)."""
     members = []

@@ -5,11 +5,13 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from mscap.errors import SceneError
 from mscap.scene import load_scene
-from mscap.service.selection import RunSummary, StartConfig, choose_k, configurations, run_id, select
+from mscap.service.selection import (RunSummary, StartConfig, choose_k, configurations, repeated_starts, run_id,
+                                     select)
 
 TOL = 0.05
 
@@ -139,3 +141,31 @@ def test_select_all_failed():
 def test_select_nothing():
     sel = select([], TOL, k_values=[2, 3])
     assert sel.chosen_k is None and sel.runs_total == 0 and len(sel.per_k) == 2
+
+
+def _plate_set(layout) -> np.ndarray:
+    centres = np.array([o.mean(axis=0) for o in layout.outlines])
+    return np.concatenate([layout.outlines[i].ravel() for i in np.lexsort((centres[:, 1], centres[:, 0]))])
+
+
+def test_repeated_lloyd_starts_are_found_and_only_those(scene):
+    """Lloyd's relaxation on the 30 × 20 mm sheet ends in few tessellations: of 8 Lloyd
+    starts per k, the repeats (same plates as a set, any order) map to the first start
+    with that layout; the rest are pairwise different; random starts are never repeats."""
+    from mscap.geometry.initial import initial_layout
+
+    ms = replace(scene.multistart, k_min=2, k_max=3, starts_per_k=10, lloyd_fraction=0.8)
+    s = replace(scene, multistart=ms)
+    configs = configurations(s)
+    repeats = repeated_starts(s, configs)
+    assert repeats and all(rid.endswith("_lloyd") and first.endswith("_lloyd") for rid, first in repeats.items())
+    layout = {c.id: _plate_set(initial_layout(s, c.k, c.seed, c.init)) for c in configs if c.init == "lloyd"}
+    index = {c.id: i for i, c in enumerate(configs)}
+    for rid, first in repeats.items():
+        assert rid[:3] == first[:3] and index[first] < index[rid] and first not in repeats
+        np.testing.assert_allclose(layout[rid], layout[first], atol=1e-9)
+    for k in (2, 3):
+        kept = [v for rid, v in layout.items() if rid.startswith(f"k{k}_") and rid not in repeats]
+        assert all(np.abs(a - b).max() > 1e-6 for i, a in enumerate(kept) for b in kept[:i])
+    # A function of the scene alone: the same answer for any subset asked about later.
+    assert repeated_starts(s) == repeats
