@@ -78,15 +78,22 @@ class Evaluation:
         return min_pairwise_l1(self.capacitance_pF)
 
     def release(self) -> None:
-        """Destroy the kept factorisations (PETSc objects) now: :meth:`Design.gradient`
-        needs them, nothing else does. Dropping the last reference is not enough — the
-        poking scene kept ~34 MB of native memory per evaluation alive that way."""
+        """Destroy the kept factorisations (PETSc objects) and drop the electrostatic
+        fields and moved vertices now: :meth:`Design.gradient` needs them, nothing else
+        does (warm starts and remeshing use the elastic equilibria, which stay). Dropping
+        the last reference to a factorisation is not enough — the poking scene kept
+        ~34 MB of native memory per evaluation alive that way — and the fields of an
+        evaluation the optimiser has moved on from stayed alive beside the next one's
+        (16 poses × 8 MB on the glove at k = 6)."""
         if self.sim is None:
             return
         for result in self.sim.poses:
             operator = None if result.state is None else result.state.operator
             if operator is not None:
                 operator.destroy()
+        poses = tuple(replace(r, capacitances=replace(r.capacitances, potentials=None), vertices=None)
+                      for r in self.sim.poses)
+        object.__setattr__(self, "sim", replace(self.sim, poses=poses))
         object.__setattr__(self, "released", True)
 
     def detached(self) -> "Evaluation":
