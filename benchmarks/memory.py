@@ -56,13 +56,15 @@ def main() -> None:
         k_max = {name: load_scene(str(ROOT / "jobs" / f"{name}.toml")).multistart.k_max for name in args.scenes}
     except MscapError as exc:
         sys.exit(f"benchmarks/memory.py: {exc}")
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                            text=True).stdout.strip() or "unknown"
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenes:
             k = k_max[name]
             mb, wall = peak_mb(name, k, args.max_iterations, Path(tmp) / f"{name}.h5")
             rows.append({"scene": name, "k": k, "max_iterations": args.max_iterations, "peak_MB": round(mb),
-                         "wall_s": round(wall, 1)})
+                         "wall_s": round(wall, 1), "commit": commit})
             print(f"{name}: k = {k}, peak {mb:.0f} MB, {wall:.0f} s", flush=True)
     with open(args.csv, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
