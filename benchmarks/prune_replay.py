@@ -1,0 +1,169 @@
+"""Replay pruning rules on an unpruned multi-start's stored histories.
+
+Every start of an unpruned file ran to its end and stored its score (min L1 distance, or
+read-back bound) and elapsed time at every accepted step, so any rung rule can be
+replayed on it without running anything: starts of each k in index order (one worker),
+each asking the master's table (:class:`mscap.service.pruning.Rungs`) at its rungs. A
+start stopped at a rung costs its elapsed time to that step. Per rule this prints the
+cost (seconds kept / seconds of the whole file; its finer-mesh checks are counted for
+the starts that finish) and, per k, how much worse the best surviving start is than the
+best start of the file, beside that run's finer-mesh error. ``--skip-repeats`` leaves out
+the Lloyd starts that repeat a layout (:func:`mscap.service.selection.repeated_starts`)
+from the replayed run, as the service does; the cost stays relative to the whole file.
+Example (seconds; the file from ``benchmarks/pruning.py``)::
+
+    .venv/bin/python benchmarks/prune_replay.py out/prune_quick/joystick/full.h5 jobs/joystick_quick.toml --skip-repeats
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RULES = ((2, 3), (2, 4), (3, 3), (3, 4), (5, 3), (5, 4), (10, 3))
+
+
+def replay(runs, kind: str, rule, leave_out=frozenset()) -> tuple[float, dict[int, float]]:
+    """Cost fraction and per-k loss of the best metric (> 0: worse) under ``rule``."""
+    from mscap.service.pruning import Rungs, rung_values, score
+
+    rungs = Rungs(rule)
+    total = sum(r.wall_s + _check(r) for r in runs)
+    cost, survivors = 0.0, {}
+    for k in sorted({r.k for r in runs}):
+        for r in sorted((r for r in runs if r.k == k and r.id not in leave_out), key=lambda r: r.seed):
+            h = r.history
+            event = np.asarray(h["event"]).astype(str)
+            values = score(kind, h["J"], h["d"], h["min_l1_pF"])
+            stop = None
+            for step, value in sorted(rung_values(rule, h["iteration"], values, event).items()):
+                if not rungs.decide(k, step, value).keep:
+                    stop = step
+                    break
+            if stop is None:
+                cost += r.wall_s + _check(r)
+                survivors.setdefault(k, []).append(r)
+            else:
+                row = np.flatnonzero((np.asarray(h["iteration"]) == stop) & (event == "step"))[0]
+                cost += float(h["time_s"][row])
+    loss = {}
+    for k, mine in survivors.items():
+        best, kept = _best(kind, [r for r in runs if r.k == k]), _best(kind, mine)
+        loss[k] = (kept.bound_mm - best.bound_mm) / best.bound_mm if kind == "bound" else \
+            (best.metric - kept.metric) / best.metric
+    return cost / total, loss
+
+
+def replay_synchronous(runs, kind: str, rule, leave_out=frozenset()) -> tuple[float, dict[int, float]]:
+    """The same with synchronous successive halving: every start of a k reaches rung 1,
+    the best ⌊n/η⌋ (at least one) go on to rung 2, and so on; what a master that parks
+    starts at their rungs would do. No start is immune for arriving early."""
+    from mscap.service.pruning import rung_values, score
+
+    total = sum(r.wall_s + _check(r) for r in runs)
+    cost, loss = 0.0, {}
+    for k in sorted({r.k for r in runs}):
+        alive = [r for r in runs if r.k == k and r.id not in leave_out]
+        values = {r.id: rung_values(rule, r.history["iteration"],
+                                    score(kind, r.history["J"], r.history["d"], r.history["min_l1_pF"]),
+                                    np.asarray(r.history["event"]).astype(str)) for r in alive}
+        for step in rule.rungs(max(int(r.iterations) for r in alive)):
+            ranked = sorted((values[r.id][step], r.seed, r) for r in alive if step in values[r.id])
+            if len(ranked) < 2:
+                break
+            keep = max(len(ranked) // rule.eta, 1)
+            for _, _, r in ranked[keep:]:
+                h = r.history
+                row = np.flatnonzero((np.asarray(h["iteration"]) == step)
+                                     & (np.asarray(h["event"]).astype(str) == "step"))[0]
+                cost += float(h["time_s"][row])
+            stopped = {r.id for _, _, r in ranked[keep:]}
+            alive = [r for r in alive if r.id not in stopped]
+        cost += sum(r.wall_s + _check(r) for r in alive)
+        best, kept = _best(kind, [r for r in runs if r.k == k]), _best(kind, alive)
+        loss[k] = (kept.bound_mm - best.bound_mm) / best.bound_mm if kind == "bound" else \
+            (best.metric - kept.metric) / best.metric
+    return cost / total, loss
+
+
+def rank_correlation(runs, kind: str, step: int) -> dict[int, float]:
+    """Per k, Spearman's rank correlation between the score at accepted step ``step`` and
+    the final score (1: the rung ranks the starts as their ends do)."""
+    from mscap.service.pruning import score
+
+    out = {}
+    for k in sorted({r.k for r in runs}):
+        pairs = []
+        for r in (r for r in runs if r.k == k):
+            h = r.history
+            rows = np.flatnonzero((np.asarray(h["iteration"]) == step) & (np.asarray(h["event"]).astype(str) == "step"))
+            if len(rows):
+                values = score(kind, h["J"], h["d"], h["min_l1_pF"])
+                final = r.bound_mm if kind == "bound" else -r.metric
+                pairs.append((float(values[rows[0]]), final))
+        if len(pairs) >= 3:
+            a, b = (np.argsort(np.argsort(np.array(col))) for col in zip(*pairs))
+            out[k] = float(np.corrcoef(a, b)[0, 1])
+    return out
+
+
+def _check(r) -> float:
+    return r.error_estimate_wall_s if math.isfinite(r.error_estimate_wall_s) else 0.0
+
+
+def _best(kind: str, runs):
+    return min(runs, key=lambda r: r.bound_mm) if kind == "bound" else max(runs, key=lambda r: r.metric)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("file", help="an unpruned results file (every start ran to its end)")
+    parser.add_argument("scene", help="its scene file (for the score and the repeated starts)")
+    parser.add_argument("--skip-repeats", action="store_true", help="leave out the repeated Lloyd starts")
+    args = parser.parse_args()
+    sys.path.insert(0, str(ROOT))
+    from mscap.scene import load_scene
+    from mscap.scene.loader import with_overrides
+    from mscap.service.pruning import PruneRule, score_kind
+    from mscap.service.selection import repeated_starts
+    from mscap.service.store import finished_ids, read_run, read_store, scene_settings
+
+    store = read_store(args.file)
+    runs = [read_run(store, rid) for rid in sorted(finished_ids(store))]
+    starts_per_k = scene_settings(store).starts_per_k
+    store.close()
+    if any(r.pruned for r in runs) or not runs:
+        sys.exit(f"{args.file}: needs an unpruned file with finished runs")
+    scene = with_overrides(load_scene(args.scene), max(starts_per_k, max(len([r for r in runs if r.k == k])
+                                                                            for k in {r.k for r in runs})))
+    kind = score_kind(scene)
+    leave_out = frozenset(repeated_starts(scene)) if args.skip_repeats else frozenset()
+    if kind == "bound" and not all(math.isfinite(r.bound_mm) for r in runs):
+        sys.exit(f"{args.file}: the scene ranks by the read-back bound, but runs lack bound_mm")
+    error = max(r.error_estimate for r in runs if math.isfinite(r.error_estimate))
+    ks = sorted({r.k for r in runs})
+    print(f"{Path(args.file)}: {len(runs)} runs, score {kind}, largest finer-mesh error {100 * error:.1f} %"
+          + (f", {len(leave_out)} repeated starts left out" if leave_out else ""))
+    print("| rule | cost | " + " | ".join(f"loss k = {k}" for k in ks) + " |")
+    print("|---|---|" + "---|" * len(ks))
+    for first, eta in ((0, 2),) + RULES:
+        for name, how in (("ASHA", replay), ("synchronous", replay_synchronous)):
+            if first == 0 and how is replay_synchronous:
+                continue
+            cost, loss = how(runs, kind, PruneRule(first, eta), leave_out)
+            label = "none" if first == 0 else f"{name} {first}:{eta}"
+            print(f"| {label} | {cost:.2f} | " + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks)
+                  + " |")
+    print("\nrank correlation of the score at a step with the final score, per k:")
+    for step in (2, 3, 5, 10, 20):
+        rho = rank_correlation(runs, kind, step)
+        print(f"  step {step:2d}: " + ", ".join(f"k = {k}: {v:+.2f}" for k, v in rho.items()))
+
+
+if __name__ == "__main__":
+    main()
