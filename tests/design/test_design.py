@@ -130,3 +130,24 @@ def test_bad_optimizer_settings_name_the_key(tmp_path_factory):
         build_design(bad)
     with pytest.raises(SceneError, match="at least 2"):
         build_design(dataclasses.replace(scene, poses=scene.poses[:1]))
+
+
+def test_a_released_evaluation_keeps_only_what_warm_starts_need(design):
+    """After its gradient, an evaluation drops its factorisations, electrostatic fields and
+    moved vertices (the optimiser keeps it beside the next trial); warm starts from it are
+    unchanged, and a second gradient is refused rather than computed from nothing."""
+    from mscap.errors import DesignError
+
+    name, d = design
+    q0 = np.full((d.n_controls, 2), 0.02)
+    e = d.evaluate(q0)
+    kept = d.evaluate(q0 + 0.01, warm=e)
+    d.gradient(e)
+    e.release()
+    assert e.released and all(r.capacitances.potentials is None and r.vertices is None for r in e.sim.poses)
+    again = d.evaluate(q0 + 0.01, warm=e)
+    assert again.J == kept.J and np.array_equal(again.capacitance_pF, kept.capacitance_pF), name
+    with pytest.raises(DesignError, match="released"):
+        d.gradient(e)
+    for x in (kept, again):
+        x.release()
