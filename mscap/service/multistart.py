@@ -3,11 +3,12 @@
 Rank 0 is the master: it opens the store (:mod:`mscap.service.store`), lists the start
 configurations the file does not hold yet (:func:`mscap.service.selection.configurations`,
 less the Lloyd starts that repeat an earlier start's layout,
-:func:`~mscap.service.selection.repeated_starts`) and hands them out one at a time; every other rank is a worker that runs one start
-(:func:`run_start`) on ``PETSc.COMM_SELF`` and sends back a :class:`~mscap.service.store.RunRecord`.
-Scheduling is dynamic — a worker gets the next configuration as soon as it returns one —
-and only the master writes, flushing after every run, so a killed job loses at most the
-runs in flight. With one rank (no ``mpirun``) the master runs every start itself.
+:func:`~mscap.service.selection.repeated_starts`) and hands them out one at a time; every
+other rank is a worker that runs one start (:func:`run_start`) on ``PETSc.COMM_SELF`` and
+sends back a :class:`~mscap.service.store.RunRecord`. Scheduling is dynamic — a worker
+gets the next configuration as soon as it returns one — and only the master writes,
+flushing after every run, so a killed job loses at most the runs in flight. With one
+rank (no ``mpirun``) the master runs every start itself.
 
 A start's result depends only on the scene and its (k, seed, init): never on the rank,
 the number of ranks or the order in which runs finish — unless the scene prunes

@@ -84,6 +84,7 @@ def repeated_starts(scene: Scene, configs: Sequence[StartConfig] | None = None) 
     """
     import numpy as np
 
+    from mscap.errors import MscapError
     from mscap.geometry.initial import initial_layout
 
     configs = configurations(scene) if configs is None else configs
@@ -93,7 +94,10 @@ def repeated_starts(scene: Scene, configs: Sequence[StartConfig] | None = None) 
     for c in configs:
         if c.init != "lloyd":
             continue
-        plates = initial_layout(scene, c.k, c.seed, c.init).outlines
+        try:
+            plates = initial_layout(scene, c.k, c.seed, c.init).outlines
+        except MscapError:  # no valid layout: the start runs and is stored as failed, with the reason
+            continue
         centres = np.array([p.mean(axis=0) for p in plates])
         order = np.lexsort((centres[:, 1], centres[:, 0]))
         key = np.concatenate([np.asarray(plates[i], dtype=float).ravel() for i in order])

@@ -169,3 +169,16 @@ def test_repeated_lloyd_starts_are_found_and_only_those(scene):
         assert all(np.abs(a - b).max() > 1e-6 for i, a in enumerate(kept) for b in kept[:i])
     # A function of the scene alone: the same answer for any subset asked about later.
     assert repeated_starts(s) == repeats
+
+
+def test_a_start_without_a_valid_layout_is_left_to_the_worker(scene, monkeypatch):
+    """repeated_starts runs in the master: a layout that cannot be made is not a repeat
+    (the worker then stores the start as failed, with the reason), never an exception."""
+    from mscap.errors import GeometryError
+    from mscap.geometry import initial
+
+    def fail(scene, k, seed, init):
+        raise GeometryError(f"no valid squares at the Lloyd centroids for k = {k}")
+    monkeypatch.setattr(initial, "initial_layout", fail)
+    s = replace(scene, multistart=replace(scene.multistart, starts_per_k=4, lloyd_fraction=1.0))
+    assert repeated_starts(s) == {}
