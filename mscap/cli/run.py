@@ -20,8 +20,8 @@ def add_parser(sub) -> None:
                    help="prune dominated starts from STEP accepted steps on, keeping the best 1/ETA at "
                         "each rung (0 disables; default: the scene's prune_first_step, prune_eta)")
     p.add_argument("--keep-repeated-starts", action="store_true",
-                   help="also run the Lloyd starts whose initial layout repeats an earlier start of their k "
-                        "(skipped by default: they differ only by the plates' numbering)")
+                   help="also run the Lloyd starts whose initial layout is an earlier start's of their k, "
+                        "plate for plate (skipped by default: the same run bit for bit)")
     p.add_argument("--max-iterations", type=int, help="L-BFGS iterations per level (default: the scene's)")
     p.add_argument("--force", action="store_true", help="start the file over even if it holds another scene")
     p.add_argument("--retry-failed", action="store_true", help="run the starts stored as failed again")

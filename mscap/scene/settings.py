@@ -173,8 +173,8 @@ class MultistartSettings:
     a start whose score (min L1 distance, or read-back bound) is not among the best
     1/``prune_eta`` of the starts of its k at that step stops (status ``"pruned"``);
     ``prune_first_step = 0`` (the default) never prunes. ``skip_repeated_starts``: leave
-    out the Lloyd starts whose initial layout repeats an earlier one of their k
-    (:func:`mscap.service.selection.repeated_starts`)."""
+    out the Lloyd starts whose initial layout is an earlier one's of their k, plate for
+    plate (:func:`mscap.service.selection.repeated_starts`: the same run bit for bit)."""
 
     k_min: int = 2
     k_max: int = 6

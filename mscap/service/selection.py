@@ -69,18 +69,20 @@ def configurations(scene: Scene) -> list[StartConfig]:
 
 
 def repeated_starts(scene: Scene, configs: Sequence[StartConfig] | None = None) -> dict[str, str]:
-    """Lloyd starts whose initial layout repeats that of an earlier Lloyd start of the same
-    k: ``{id: id of the first start with that layout}``.
+    """Lloyd starts whose initial layout is that of an earlier Lloyd start of the same k,
+    plate for plate: ``{id: id of the first start with that layout}``.
 
     Lloyd's relaxation on a grid ends in one of few centroidal tessellations, so different
-    seeds often give the same sites, sometimes numbered in another order (8 Lloyd starts per
-    k on ``jobs/poking_cross_quick.toml``: 6, 5 and 8 distinct layouts at k = 2, 3, 4).
-    Plates are compared as a set (sorted by centroid) to 1e-9 of the sheet's size. A
-    repeat in the same plate order would give the same run bit for bit; in another order
-    only gmsh's numbering differs, which moved the final metric by 0.8 % there, within
-    the run's 1.3 % finer-mesh error (docs/performance.md §8). The multi-start skips
-    repeats. This depends on the scene alone, so every array task of a split job agrees.
-    Random starts are not compared: two seeds give the same layout with probability 0.
+    seeds often give the very same sites (8 Lloyd starts per k on
+    ``jobs/joystick_quick.toml``: 2 and 4 distinct layouts at k = 2, 3). A start whose plates
+    are equal, in the same order, to an earlier one's is the same run bit for bit, and the
+    multi-start skips it. The same plates in another order are *not* a repeat: the
+    numbering changes gmsh's mesh, and the optimisation path with it, by more than the
+    mesh error (pneumatic_quick, k = 2: bounds 0.212 against 0.250 mm from one layout in two
+    orders; docs/performance.md §8). This depends on the scene alone, so every array task
+    of a split job agrees. Random starts are not compared: two seeds give the same layout
+    with probability 0. A start whose layout cannot be made is left to the worker, which
+    stores it as failed with the reason.
     """
     import numpy as np
 
@@ -88,25 +90,21 @@ def repeated_starts(scene: Scene, configs: Sequence[StartConfig] | None = None) 
     from mscap.geometry.initial import initial_layout
 
     configs = configurations(scene) if configs is None else configs
-    size = float(np.ptp(scene.sheet_outline_mm, axis=0).max())
-    seen: dict[int, list[tuple[np.ndarray, str]]] = {}
+    seen: dict[int, list[tuple[tuple[np.ndarray, ...], str]]] = {}
     out = {}
     for c in configs:
         if c.init != "lloyd":
             continue
         try:
             plates = initial_layout(scene, c.k, c.seed, c.init).outlines
-        except MscapError:  # no valid layout: the start runs and is stored as failed, with the reason
+        except MscapError:
             continue
-        centres = np.array([p.mean(axis=0) for p in plates])
-        order = np.lexsort((centres[:, 1], centres[:, 0]))
-        key = np.concatenate([np.asarray(plates[i], dtype=float).ravel() for i in order])
         for other, other_id in seen.setdefault(c.k, []):
-            if other.shape == key.shape and np.abs(other - key).max() <= 1e-9 * size:
+            if all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(plates, other)):
                 out[c.id] = other_id
                 break
         else:
-            seen[c.k].append((key, c.id))
+            seen[c.k].append((plates, c.id))
     return out
 
 

@@ -198,9 +198,10 @@ def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_pat
 
 
 def test_lloyd_starts_that_repeat_a_layout_are_skipped(tmp_path, monkeypatch):
-    """Ten Lloyd starts at k = 2 on the 30 × 20 mm sheet give two layouts: the master runs
-    those two and says which starts it skipped and why; a rerun skips them again;
-    ``--keep-repeated-starts`` runs them all."""
+    """Ten Lloyd starts at k = 2 on the 30 × 20 mm sheet give four distinct layouts (two
+    tessellations, each in two plate orders): the master runs those four and says which
+    starts it skipped and why; a rerun skips them again; ``--keep-repeated-starts`` runs
+    them all."""
     from mpi4py import MPI
 
     from mscap.scene import load_scene
@@ -220,13 +221,13 @@ def test_lloyd_starts_that_repeat_a_layout_are_skipped(tmp_path, monkeypatch):
                         or failed_record(c.k, c.seed, c.init, "not run (test)", 0.0, 0))
     out = str(tmp_path / "lloyd.h5")
     summary = multistart.run_multistart(scene, out, MPI.COMM_SELF, progress=lines.append)
-    assert len(ran) == 10 - len(repeats) == 2 and not set(ran) & set(repeats)
-    assert summary["runs_done"] == 2
+    assert len(ran) == 10 - len(repeats) == 4 and not set(ran) & set(repeats)
+    assert summary["runs_done"] == 4
     skipped = next(line for line in lines if line.startswith("skipped"))
     assert f"skipped {len(repeats)} Lloyd starts" in skipped and "k2_s2002_lloyd (= k2_s2000_lloyd)" in skipped
     ran.clear()
     multistart.run_multistart(scene, out, MPI.COMM_SELF, retry_failed=True, progress=lines.append)
-    assert len(ran) == 2 and not set(ran) & set(repeats)
+    assert len(ran) == 4 and not set(ran) & set(repeats)
     # mscap run --keep-repeated-starts runs all ten.
     ran.clear()
     keep = with_overrides(scene, keep_repeated_starts=True)
