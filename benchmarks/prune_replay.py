@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -30,65 +31,40 @@ RULES = ((2, 3), (2, 4), (3, 3), (3, 4), (5, 3), (5, 4), (10, 3))
 
 def replay(runs, kind: str, rule, leave_out=frozenset()) -> tuple[float, dict[int, float]]:
     """Cost fraction and per-k loss of the best metric (> 0: worse) under ``rule``."""
-    from mscap.service.pruning import Rungs, rung_values, score
+    from mscap.service.pruning import Rungs
 
     rungs = Rungs(rule)
-    total = sum(r.wall_s + _check(r) for r in runs)
     cost, survivors = 0.0, {}
     for k in sorted({r.k for r in runs}):
         for r in sorted((r for r in runs if r.k == k and r.id not in leave_out), key=lambda r: r.seed):
-            h = r.history
-            event = np.asarray(h["event"]).astype(str)
-            values = score(kind, h["J"], h["d"], h["min_l1_pF"])
-            stop = None
-            for step, value in sorted(rung_values(rule, h["iteration"], values, event).items()):
-                if not rungs.decide(k, step, value).keep:
-                    stop = step
-                    break
+            stop = next((step for step, value in sorted(_rung_scores(rule, kind, r).items())
+                         if not rungs.decide(k, step, value).keep), None)
             if stop is None:
                 cost += r.wall_s + _check(r)
                 survivors.setdefault(k, []).append(r)
             else:
-                row = np.flatnonzero((np.asarray(h["iteration"]) == stop) & (event == "step"))[0]
-                cost += float(h["time_s"][row])
-    loss = {}
-    for k, mine in survivors.items():
-        best, kept = _best(kind, [r for r in runs if r.k == k]), _best(kind, mine)
-        loss[k] = (kept.bound_mm - best.bound_mm) / best.bound_mm if kind == "bound" else \
-            (best.metric - kept.metric) / best.metric
-    return cost / total, loss
+                cost += float(r.history["time_s"][_row(r.history, stop)])
+    return cost / _total(runs), {k: _loss(kind, runs, k, mine) for k, mine in survivors.items()}
 
 
 def replay_synchronous(runs, kind: str, rule, leave_out=frozenset()) -> tuple[float, dict[int, float]]:
     """The same with synchronous successive halving: every start of a k reaches rung 1,
     the best ⌊n/η⌋ (at least one) go on to rung 2, and so on; what a master that parks
     starts at their rungs would do. No start is immune for arriving early."""
-    from mscap.service.pruning import rung_values, score
-
-    total = sum(r.wall_s + _check(r) for r in runs)
     cost, loss = 0.0, {}
     for k in sorted({r.k for r in runs}):
         alive = [r for r in runs if r.k == k and r.id not in leave_out]
-        values = {r.id: rung_values(rule, r.history["iteration"],
-                                    score(kind, r.history["J"], r.history["d"], r.history["min_l1_pF"]),
-                                    np.asarray(r.history["event"]).astype(str)) for r in alive}
+        values = {r.id: _rung_scores(rule, kind, r) for r in alive}
         for step in rule.rungs(max(int(r.iterations) for r in alive)):
             ranked = sorted((values[r.id][step], r.seed, r) for r in alive if step in values[r.id])
             if len(ranked) < 2:
                 break
-            keep = max(len(ranked) // rule.eta, 1)
-            for _, _, r in ranked[keep:]:
-                h = r.history
-                row = np.flatnonzero((np.asarray(h["iteration"]) == step)
-                                     & (np.asarray(h["event"]).astype(str) == "step"))[0]
-                cost += float(h["time_s"][row])
-            stopped = {r.id for _, _, r in ranked[keep:]}
-            alive = [r for r in alive if r.id not in stopped]
+            stopped = [r for _, _, r in ranked[max(len(ranked) // rule.eta, 1):]]
+            cost += sum(float(r.history["time_s"][_row(r.history, step)]) for r in stopped)
+            alive = [r for r in alive if r not in stopped]
         cost += sum(r.wall_s + _check(r) for r in alive)
-        best, kept = _best(kind, [r for r in runs if r.k == k]), _best(kind, alive)
-        loss[k] = (kept.bound_mm - best.bound_mm) / best.bound_mm if kind == "bound" else \
-            (best.metric - kept.metric) / best.metric
-    return cost / total, loss
+        loss[k] = _loss(kind, runs, k, alive)
+    return cost / _total(runs), loss
 
 
 def rank_correlation(runs, kind: str, step: int) -> dict[int, float]:
@@ -100,24 +76,48 @@ def rank_correlation(runs, kind: str, step: int) -> dict[int, float]:
     for k in sorted({r.k for r in runs}):
         pairs = []
         for r in (r for r in runs if r.k == k):
-            h = r.history
-            rows = np.flatnonzero((np.asarray(h["iteration"]) == step) & (np.asarray(h["event"]).astype(str) == "step"))
-            if len(rows):
-                values = score(kind, h["J"], h["d"], h["min_l1_pF"])
+            h, row = r.history, _row(r.history, step)
+            if row is not None:
                 final = r.bound_mm if kind == "bound" else -r.metric
-                pairs.append((float(values[rows[0]]), final))
+                pairs.append((float(score(kind, h["J"], h["d"], h["min_l1_pF"])[row]), final))
         if len(pairs) >= 3:
             a, b = (np.argsort(np.argsort(np.array(col))) for col in zip(*pairs))
             out[k] = float(np.corrcoef(a, b)[0, 1])
     return out
 
 
+def _rung_scores(rule, kind: str, r) -> dict[int, float]:
+    """A run's score (:func:`mscap.service.pruning.score`) at each rung it reached."""
+    from mscap.service.pruning import rung_values, score
+
+    h = r.history
+    return rung_values(rule, h["iteration"], score(kind, h["J"], h["d"], h["min_l1_pF"]),
+                       np.asarray(h["event"]).astype(str))
+
+
+def _row(history, step: int) -> int | None:
+    """The history row of accepted step ``step`` (``None`` if the run never reached it)."""
+    rows = np.flatnonzero((np.asarray(history["iteration"]) == step)
+                          & (np.asarray(history["event"]).astype(str) == "step"))
+    return int(rows[0]) if len(rows) else None
+
+
 def _check(r) -> float:
     return r.error_estimate_wall_s if math.isfinite(r.error_estimate_wall_s) else 0.0
 
 
-def _best(kind: str, runs):
-    return min(runs, key=lambda r: r.bound_mm) if kind == "bound" else max(runs, key=lambda r: r.metric)
+def _total(runs) -> float:
+    return sum(r.wall_s + _check(r) for r in runs)
+
+
+def _loss(kind: str, runs, k: int, kept) -> float:
+    """How much worse the best of ``kept`` is than the best run of k in ``runs`` (> 0: worse)."""
+    mine = [r for r in runs if r.k == k]
+    if kind == "bound":
+        best, survivor = min(r.bound_mm for r in mine), min(r.bound_mm for r in kept)
+        return (survivor - best) / best
+    best, survivor = max(r.metric for r in mine), max(r.metric for r in kept)
+    return (best - survivor) / best
 
 
 def main() -> None:
@@ -131,16 +131,15 @@ def main() -> None:
     from mscap.scene.loader import with_overrides
     from mscap.service.pruning import PruneRule, score_kind
     from mscap.service.selection import repeated_starts
-    from mscap.service.store import finished_ids, read_run, read_store, scene_settings
+    from mscap.service.store import finished_ids, read_run, read_store
 
     store = read_store(args.file)
     runs = [read_run(store, rid) for rid in sorted(finished_ids(store))]
-    starts_per_k = scene_settings(store).starts_per_k
     store.close()
     if any(r.pruned for r in runs) or not runs:
         sys.exit(f"{args.file}: needs an unpruned file with finished runs")
-    scene = with_overrides(load_scene(args.scene), max(starts_per_k, max(len([r for r in runs if r.k == k])
-                                                                            for k in {r.k for r in runs})))
+    # The file's starts per k (it may have run with --starts-per-k), for the repeated starts.
+    scene = with_overrides(load_scene(args.scene), max(Counter(r.k for r in runs).values()))
     kind = score_kind(scene)
     leave_out = frozenset(repeated_starts(scene)) if args.skip_repeats else frozenset()
     if kind == "bound" and not all(math.isfinite(r.bound_mm) for r in runs):

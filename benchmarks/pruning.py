@@ -95,7 +95,8 @@ def main() -> None:
         cells = []
         for k in ks:
             metric, err, _ = s["per_k"].get(k, (None, math.nan, None))
-            cells.append("-" if metric is None else f"{metric:.4g}" + (f" (±{100 * err:.1f} %)" if math.isfinite(err) else ""))
+            error = f" (±{100 * err:.1f} %)" if math.isfinite(err) else ""
+            cells.append("-" if metric is None else f"{metric:.4g}{error}")
         ratio = "" if s is a else f" ({s['core_s'] / a['core_s']:.2f})"
         steps = "" if s is a else f" ({s['steps'] / a['steps']:.2f})"
         print(f"| {name} | {s['runs']} ({s['pruned']}) | {s['steps']}{steps} | {s['core_s']:.0f}{ratio} | "

@@ -147,8 +147,9 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         finished = finished_ids(store, failed=not retry_failed)
         configs = configurations(scene)
         repeats = repeated_starts(scene, configs) if scene.multistart.skip_repeated_starts else {}
-        todo = [c for c in configs
-                if c.id not in finished and c.id not in repeats and (select_configs is None or select_configs(c))]
+        wanted = [c for c in configs if c.id not in finished and (select_configs is None or select_configs(c))]
+        todo = [c for c in wanted if c.id not in repeats]
+        skipped = [f"{c.id} (= {repeats[c.id]})" for c in wanted if c.id in repeats]
         # Longest first: a start's cost grows with k, and handing out the big ones first
         # leaves the short ones to fill the tail (jobs/quick.toml on 2 workers: busy
         # fraction 0.88 → 0.94, docs/performance.md §4). Results do not depend on the order.
@@ -156,9 +157,6 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         total, started = len(todo), time.perf_counter()
         say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
             f"worker{'s' if size > 2 else ''}")
-        by_id = {c.id: c for c in configs}
-        skipped = [f"{rid} (= {first})" for rid, first in repeats.items()
-                   if rid not in finished and (select_configs is None or select_configs(by_id[rid]))]
         if skipped:
             say(f"skipped {len(skipped)} Lloyd start{'s' if len(skipped) > 1 else ''} whose initial layout repeats "
                 f"an earlier start of its k: {', '.join(skipped)}")

@@ -17,8 +17,8 @@ from mscap.scene.loader import check_multistart
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS",
-           "run_id", "configurations", "repeated_starts", "choose_k", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
+__all__ = ["StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS", "run_id", "configurations",
+           "repeated_starts", "choose_k", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
 
 #: The ``init`` kinds the multi-start schedules, in order (:func:`configurations`: Lloyd
 #: starts first, then random ones); a subset of :data:`mscap.geometry.initial.LAYOUT_INITS`.
@@ -100,7 +100,7 @@ def repeated_starts(scene: Scene, configs: Sequence[StartConfig] | None = None) 
         except MscapError:
             continue
         for other, other_id in seen.setdefault(c.k, []):
-            if all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(plates, other)):
+            if all(map(np.array_equal, plates, other)):  # same k: as many plates
                 out[c.id] = other_id
                 break
         else:
