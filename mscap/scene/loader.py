@@ -23,7 +23,8 @@ from mscap.scene.calibration import CalibrationSettings, read_calibration
 from mscap.scene.poses import read_pose
 from mscap.scene.settings import (DEFAULT_FAMILY_COUNT, DESIGN_POSES, DISTANCES, ELASTIC_MESHES, HESSIAN_MODES,
                                   LAYER_KINDS, MAX_STARTS_PER_K, POSE_KINDS, SKINNING_METHODS, ElasticSettings,
-                                  Layer, Material, MeshSettings, MultistartSettings, OptimizerSettings, Scene)
+                                  Layer, Material, MeshSettings, MultistartSettings, OptimizerSettings, Scene,
+                                  auto_slabs)
 
 __all__ = ["load_scene", "check_optimizer", "check_multistart", "check_designable", "family_grid_counts",
            "read_multistart", "select_poses", "with_overrides"]
@@ -59,6 +60,8 @@ def load_scene(path: str | Path) -> Scene:
     poses = _read_poses(root, objects)
     _check_pose_geometry(path, poses, sheet)
     elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
+    if "elements_through_thickness" not in data.get("elastic", {}):
+        elastic = replace(elastic, elements_through_thickness=auto_slabs(layers))
     if elastic.order not in (1, 2):
         raise SceneError(path, "elastic.order", f"must be 1 or 2, got {elastic.order!r}")
     if not elastic.tolerance > 0:

@@ -26,7 +26,7 @@ from mscap.scene import load_scene
 from mscap.scene.poses import StretchPose
 from mscap.scene.settings import ElasticSettings
 from tests.conftest import grid_trimesh, to_toml
-from tests.scenes import CLEAR, STACK_MM, free_thickness_stretch, poke_scene_dict, stack
+from tests.scenes import CLEAR, STACK_MM, free_thickness_stretch, poke_scene_dict, scene_dict, stack
 
 FULL = lambda centroids: np.zeros(len(centroids))  # noqa: E731 — one plate over the sheet
 
@@ -149,6 +149,65 @@ def test_roller_stretch_on_a_coarse_elastic_mesh_keeps_the_closed_form(electro_p
     # 2 (uniaxial), 2.3556736823992 (equibiaxial 1.25), 3.8189330329193 (plane strain 2);
     # measured ≤ 3e-14.
     assert ratio == pytest.approx(expected, rel=1e-9)
+
+
+def layered_stretch(scene, l1, l2):
+    """The exact homogeneous stretch of a stack of unequal ν: every layer takes the
+    in-plane stretches (l1, l2) and its own free thickness stretch (P33 = 0), bottom at
+    z = 0. ``l2=None``: uniaxial, the lateral stretch with no net lateral force
+    Σ t_i P22_i = 0, P22 = μ (λ2 − 1/λ2) + λ ln J / λ2."""
+    from scipy.optimize import brentq
+
+    def thickness(m, a, b):
+        return free_thickness_stretch(a, b, m)
+
+    def lateral_force(b):
+        total = 0.0
+        for layer in scene.layers:
+            mu, lam = layer.material.lame_MPa
+            j = l1 * b * thickness(layer.material, l1, b)
+            total += layer.thickness_mm * (mu * (b - 1 / b) + lam * np.log(j) / b)
+        return total
+
+    l2 = brentq(lateral_force, 0.3, 1.0, xtol=1e-15) if l2 is None else l2
+    t = np.array([layer.thickness_mm for layer in scene.layers])
+    s = np.array([thickness(layer.material, l1, l2) for layer in scene.layers])
+    levels, stretched = np.concatenate([[0.0], np.cumsum(t)]), np.concatenate([[0.0], np.cumsum(t * s)])
+
+    def move(points):
+        return np.column_stack([l1 * points[:, 0], l2 * points[:, 1], np.interp(points[:, 2], levels, stretched)])
+    return move
+
+
+@pytest.mark.parametrize("mode, stretch", [("biaxial", [1.25, 1.25]), ("uniaxial", 1.25)])
+def test_unequal_poisson_ratios_get_a_layer_aligned_elastic_mesh_by_default(tmp_path, mode, stretch):
+    # Plates and their layers of ν = 0.30 between dielectrics of 0.47: each layer takes its
+    # own thickness stretch, which one slab through the stack cannot (measured C/C0
+    # 2.06 % low biaxial, 2.56 % uniaxial, at λ = 1.25). Without `elements_through_thickness`
+    # the scene gets one slab per layer (auto_slabs), and C equals the electrostatic solve
+    # on the closed-form map of the same mesh: measured 3e-14 biaxial (rollers all round);
+    # 5e-7 uniaxial, whose free edges cannot carry each layer's own lateral stress.
+    data = scene_dict()
+    data["materials"]["carbon"]["poisson_ratio"] = 0.30
+    for layer in data["layers"]:
+        if layer["kind"] == "conductive":
+            layer["fill"] = "carbon"
+    data["poses"] = [{"name": "s", "kind": "stretch", "mode": mode, "stretch": stretch, "grips": "roller",
+                      "load_steps": 4}]
+    path = tmp_path / "nu.toml"
+    path.write_text(to_toml(data))
+    scene = load_scene(path)
+    assert scene.elastic.elements_through_thickness == 0
+    sim = simulate(scene)
+    move = layered_stretch(scene, 1.25, 1.25 if mode == "biaxial" else None)
+    exact = es.solve(sim.electro, move(sim.mesh.points)).capacitance_pF
+    np.testing.assert_allclose(sim.poses[0].capacitance_pF, exact, rtol=1e-6)
+    one_slab = dataclasses.replace(scene, elastic=dataclasses.replace(scene.elastic, elements_through_thickness=1))
+    low = simulate(one_slab).poses[0].capacitance_pF / exact - 1
+    assert np.all(low < -0.015)
+    data["materials"]["carbon"]["poisson_ratio"] = 0.47  # equal ν: one slab is exact
+    path.write_text(to_toml(data))
+    assert load_scene(path).elastic.elements_through_thickness == 1
 
 
 def test_scene_with_its_own_elastic_mesh_pokes_like_the_shared_one(tmp_path):
