@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -36,11 +37,15 @@ def run(args) -> int:
         written = out / "mesh.vtu"
         write_mesh(written, mesh)
     if args.json:
-        print(json.dumps({"scene": scene.name, **report.as_dict(),
+        print(json.dumps({"scene": scene.name, "settings": dataclasses.asdict(scene.mesh), **report.as_dict(),
                           "file": str(written) if written else None}))
         return 0
     print(f"scene {scene.name} ({scene.path}): {scene.layout.k} capacitors, "
           f"{scene.thickness_mm:.3f} mm thick")
+    m = scene.mesh
+    why = f"for a {100 * m.tolerance:g} % capacitance tolerance" if m.tolerance else "set by hand"
+    print(f"  sizes ({why}): P{m.order}, edge {m.edge_length_outline_mm:.3g} mm at the outlines growing to "
+          f"{m.edge_length_mm:g} mm over {m.grading_distance_mm:.3g} mm, {m.elements_per_layer} per layer")
     for line in report.lines():
         print("  " + line)
     if written:

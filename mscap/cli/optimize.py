@@ -3,7 +3,6 @@ the layout optimisation (paper §5.1)."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 from mscap.cli.common import load_scene_for, progress_printer
@@ -37,13 +36,14 @@ def run(args) -> int:
     from mscap.design.pipeline import build_design
     from mscap.design.readback import design_scene
     from mscap.geometry.initial import initial_layout
+    from mscap.mesh.sizing import with_layout
     from mscap.service.designs import OPTIMIZE_FILES, write_optimize_output
 
     scene = design_scene(load_scene_for(args))  # the design poses: listed, or from the family
     say = progress_printer(args.quiet) or (lambda message: None)
     layout = initial_layout(scene, args.k, args.seed, args.init)
     say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(scene.poses)} design poses")
-    design = build_design(replace(scene, layout=layout))
+    design = build_design(with_layout(scene, layout))
     result = optimize(design, progress=say, max_iterations=args.max_iterations, cascade_levels=args.cascade)
 
     out = Path(args.output)

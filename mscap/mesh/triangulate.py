@@ -5,7 +5,10 @@ is a plane surface of its own sharing those curves, so the triangulation conform
 every outline exactly and each triangle knows its capacitor. A Distance → Threshold
 size field grades the edge length from ``edge_length_outline_mm`` on the outlines to
 ``edge_length_mm`` at ``grading_distance_mm`` from them: the field at plate edges
-varies over the dielectric gap, so a uniform mesh overestimates capacitance.
+varies over the dielectric gap, so a uniform mesh overestimates capacitance. With a
+``fringe_distance_mm``, the edge length grows no faster than ``fringe_slope`` within that
+distance of the outlines (where the fringe field lives) and at the ``grading_distance_mm``
+rate beyond it: the larger of two Threshold fields.
 """
 
 from __future__ import annotations
@@ -70,6 +73,17 @@ def _add_loop(geo, polygon: np.ndarray, spacing: float | None = None) -> tuple[i
     return geo.addCurveLoop(lines), lines
 
 
+def _threshold(field, distance: int, near: float, far: float, start: float, stop: float) -> int:
+    """A gmsh Threshold field: ``near`` up to ``start`` from the outlines, linear to ``far`` at ``stop``."""
+    threshold = field.add("Threshold")
+    field.setNumber(threshold, "InField", distance)
+    field.setNumber(threshold, "SizeMin", near)
+    field.setNumber(threshold, "SizeMax", far)
+    field.setNumber(threshold, "DistMin", start)
+    field.setNumber(threshold, "DistMax", stop)
+    return threshold
+
+
 def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSettings) -> TriMesh:
     """Mesh the sheet with the layout's outlines embedded.
 
@@ -101,13 +115,19 @@ def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSett
         field.setNumbers(distance, "CurvesList", outline_curves)
         longest = max(float(np.max(np.linalg.norm(np.roll(o, -1, 0) - o, axis=1))) for o in layout.outlines)
         field.setNumber(distance, "Sampling", int(np.ceil(4 * longest / settings.edge_length_outline_mm)) + 1)
-        threshold = field.add("Threshold")
-        field.setNumber(threshold, "InField", distance)
-        field.setNumber(threshold, "SizeMin", settings.edge_length_outline_mm)
-        field.setNumber(threshold, "SizeMax", settings.edge_length_mm)
-        field.setNumber(threshold, "DistMin", 0.0)
-        field.setNumber(threshold, "DistMax", settings.grading_distance_mm)
-        field.setAsBackgroundMesh(threshold)
+        near, far = settings.edge_length_outline_mm, settings.edge_length_mm
+        ramp = _threshold(field, distance, near, far, 0.0, settings.grading_distance_mm)
+        if settings.fringe_distance_mm > 0:
+            # gentle within the fringe zone, then the steeper ramp: it starts late enough to
+            # cross the gentle one at fringe_distance_mm
+            gentle = _threshold(field, distance, near, far, 0.0, (far - near) / settings.fringe_slope)
+            steep = (far - near) / settings.grading_distance_mm
+            start = settings.fringe_distance_mm * (1.0 - settings.fringe_slope / steep) if steep > settings.fringe_slope \
+                else settings.fringe_distance_mm
+            late = _threshold(field, distance, near, far, start, start + settings.grading_distance_mm)
+            ramp = field.add("Max")
+            field.setNumbers(ramp, "FieldsList", [gentle, late])
+        field.setAsBackgroundMesh(ramp)
         for option in ("MeshSizeExtendFromBoundary", "MeshSizeFromPoints", "MeshSizeFromCurvature"):
             gmsh.option.setNumber(f"Mesh.{option}", 0)
         # Frontal-Delaunay: gmsh's Delaunay (5) is 10 % faster but follows the size ramp off the

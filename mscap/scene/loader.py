@@ -8,6 +8,7 @@ that builds settings itself (tests, a stored scene) calls.
 
 from __future__ import annotations
 
+import logging
 import tomllib
 import typing
 from dataclasses import replace
@@ -18,6 +19,7 @@ import numpy as np
 from mscap.errors import GeometryError, SceneError
 from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import SHAPES, Layout, check_layout, grid_layout
+from mscap.mesh import sizing
 from mscap.scene._toml import Table
 from mscap.scene.calibration import CalibrationSettings, read_calibration
 from mscap.scene.poses import read_pose
@@ -28,6 +30,8 @@ from mscap.scene.settings import (DEFAULT_FAMILY_COUNT, DESIGN_POSES, DISTANCES,
 
 __all__ = ["load_scene", "check_optimizer", "check_multistart", "check_designable", "family_grid_counts",
            "read_multistart", "select_poses", "with_overrides"]
+
+log = logging.getLogger(__name__)
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -54,8 +58,11 @@ def load_scene(path: str | Path) -> Scene:
     sheet = _read_sheet(root.table("sheet"))
     materials = _read_materials(root.table("materials"))
     layers = _read_layers(root, materials)
-    mesh = _read_mesh(root.table("mesh"))
+    mesh_table = root.table("mesh", required=False) or Table(path, "mesh", {})
+    mesh = _read_mesh(mesh_table, layers)
     layout, min_gap = _read_capacitors(root.table("capacitors"), sheet, mesh)
+    if mesh.tolerance is not None:
+        mesh = _size_mesh(mesh_table, mesh, layers, layout)
     objects = _read_objects(root, path)
     poses = _read_poses(root, objects)
     _check_pose_geometry(path, poses, sheet)
@@ -157,18 +164,46 @@ def _read_layers(root: Table, materials: dict[str, Material]) -> tuple[Layer, ..
     return tuple(layers)
 
 
-def _read_mesh(t: Table) -> MeshSettings:
-    far = t.get("edge_length_mm", float, positive=True)
-    near = t.get("edge_length_outline_mm", float, positive=True)
+#: The [mesh] keys that set sizes by hand; a scene that gives all three and no tolerance
+#: is meshed as given.
+SIZE_KEYS = ("edge_length_mm", "edge_length_outline_mm", "grading_distance_mm")
+
+
+def _read_mesh(t: Table, layers: tuple[Layer, ...]) -> MeshSettings:
+    """``[mesh]`` as given; without all three sizes (or with a ``tolerance``), sized from the
+    tolerance later (:func:`_size_mesh`), here with placeholders the given keys replace."""
+    by_hand = all(t.has(key) for key in SIZE_KEYS) and not t.has("tolerance")
+    tolerance = None
+    if not by_hand:
+        tolerance = t.get("tolerance", float, sizing.DEFAULT_TOLERANCE, positive=True)
+        if not tolerance < 1:
+            raise t.error("tolerance", f"a relative capacitance error, must be < 1, got {tolerance!r}")
+    gap = layers[2].thickness_mm
+    far = t.get("edge_length_mm", float, ... if by_hand else sizing.FAR_EDGE_MM, positive=True)
+    near = t.get("edge_length_outline_mm", float, ... if by_hand else min(gap, far), positive=True)
     if near > far:
         raise t.error("edge_length_outline_mm", f"{near!r} exceeds edge_length_mm = {far!r}")
-    grading = t.get("grading_distance_mm", float, positive=True)
+    grading = t.get("grading_distance_mm", float, ... if by_hand else far / sizing.STEEP, positive=True)
     per_layer = t.get("elements_per_layer", int, 1, minimum=1)
     order = t.get("order", int, 1)
     if order not in (1, 2):
         raise t.error("order", f"must be 1 or 2, got {order!r}")
     t.finish()
-    return MeshSettings(far, near, grading, per_layer, order)
+    return MeshSettings(far, near, grading, per_layer, order, tolerance)
+
+
+def _size_mesh(t: Table, given: MeshSettings, layers: tuple[Layer, ...], layout: Layout) -> MeshSettings:
+    """The ladder's cheapest settings for the tolerance on the layout's plates; keys the
+    scene gives win over the ladder's."""
+    keys = ("edge_length_mm", "edge_length_outline_mm", "grading_distance_mm", "elements_per_layer", "order")
+    mesh, worst = sizing.sized(replace(given, overrides=tuple((key, getattr(given, key)) for key in keys if t.has(key))),
+                               layers, layout)
+    if mesh.edge_length_outline_mm > mesh.edge_length_mm:
+        raise t.error("edge_length_mm", f"{mesh.edge_length_mm!r} is below the outline edge "
+                      f"{mesh.edge_length_outline_mm!r} the tolerance needs")
+    log.info("mesh for tolerance %g: P%d, outline edge %.3g mm, %d per layer (predicted error %.2g)",
+             given.tolerance, mesh.order, mesh.edge_length_outline_mm, mesh.elements_per_layer, worst)
+    return mesh
 
 
 def _read_capacitors(t: Table, sheet: np.ndarray, mesh: MeshSettings) -> tuple[Layout, float]:

@@ -85,13 +85,22 @@ class Layer:
 
 @dataclass(frozen=True)
 class MeshSettings:
-    """Target sizes for the 2D triangulation and the extrusion."""
+    """Target sizes for the 2D triangulation and the extrusion. ``tolerance``: the relative
+    capacitance error the sizes were chosen for (:mod:`mscap.mesh.sizing`), None when
+    the scene set them by hand; ``overrides``, the ``(key, value)`` pairs the scene gave
+    beside it, which win over the sizes the tolerance asks for. Within
+    ``fringe_distance_mm`` of the outlines the edge length grows no faster than
+    ``fringe_slope`` (0: one ramp over ``grading_distance_mm``)."""
 
     edge_length_mm: float
     edge_length_outline_mm: float
     grading_distance_mm: float
     elements_per_layer: int = 1
     order: int = 1
+    tolerance: float | None = None
+    fringe_distance_mm: float = 0.0
+    fringe_slope: float = 0.5
+    overrides: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -53,6 +53,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     ``(k, step, score)`` at each rung (:func:`mscap.service.pruning.score`) and answers with a
     :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned."""
     from mscap.design.pipeline import build_design
+    from mscap.mesh.sizing import with_layout
     from mscap.geometry.initial import initial_layout
     from mscap.design.optimizer import optimize
 
@@ -60,7 +61,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     start = time.perf_counter()
     try:
         layout = initial_layout(scene, config.k, config.seed, config.init)
-        design = build_design(replace(scene, layout=layout))
+        design = build_design(with_layout(scene, layout))  # sized for its plates
         scene = design.scene  # its design poses (mscap.design.readback.design_scene)
         rule, kind, verdicts = PruneRule.from_settings(scene.multistart), score_kind(scene), []
 

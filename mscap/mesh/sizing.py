@@ -1,0 +1,138 @@
+"""Mesh sizes from a capacitance tolerance (``[mesh] tolerance``).
+
+A layered mesh overestimates each plate's capacitance by its fringe error, an amount per
+unit of plate edge: the plate edge is a 270° corner of the dielectric, where the potential
+behaves like r^(2/3) and the mesh (P1 or P2) resolves it only so far. Measured per unit
+edge and divided by the permittivity, that error e/ε is a property of the mesh settings
+alone — the same for a 6 mm, a 10 mm and a 20 mm square and a 10 mm disk once the edge
+length grows gently away from the outlines (``benchmarks/plate_size.py``,
+docs/electrostatics.md, "Meshes from a tolerance"). A plate of area A and perimeter P
+over a dielectric gap d then has a relative error of about
+
+    (e/ε) · P d / A,
+
+the fringe overestimate e P over the parallel-plate capacitance ε A / d. Small plates
+have the most edge per area: for 1 %, a 20 mm square allows e/ε ≤ 0.36, a 6 mm square
+e/ε ≤ 0.11.
+
+:data:`LADDER` lists mesh settings from the cheapest to the most accurate, each with its
+measured e/ε (the largest over the four calibration plates); :func:`settings_for_tolerance`
+takes the first that keeps every plate of a layout within the tolerance. Sizes are
+multiples of the dielectric gap, so a stack of other thicknesses gets a mesh scaled with
+it; the constants were measured on the paper's stack (0.14 / 0.07 / 0.14 / 0.07 / 0.14 mm,
+gap 0.14 mm) and hold for stacks of those proportions.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import numpy as np
+
+from mscap.geometry import polygons as geometry
+from mscap.geometry.layout import Layout
+from mscap.scene.settings import Layer, MeshSettings, Scene
+
+__all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
+           "predicted_errors", "settings_for_tolerance", "sized", "with_layout"]
+
+log = logging.getLogger(__name__)
+
+#: The fringe zone, where the edge length grows at a rung's slope, in stack thicknesses
+#: from the outlines: the fringe field decays like exp(−π x / t) over a stack of thickness
+#: t, to 4e-6 at 4 t. Beyond it the edge length grows at STEEP, as the hand-set meshes do
+#: everywhere. Their steep ramp (0.075 → 5 mm over 2.5 mm) leaves 0.5 mm triangles 0.25 mm
+#: from a plate edge, where the fringe still varies over a layer thickness, and their error
+#: depends on where the nodes fall: a 10 mm square 3.6 % high, a 6 mm one 3.3 %, a 20 mm
+#: one 0.9 %, where a slope of 0.5 gives 1.35, 2.25 and 0.69 %.
+FRINGE_STACKS = 4.0
+STEEP = 2.0
+#: Edge length far from the outlines, where the field is uniform (under a plate) or zero.
+FAR_EDGE_MM = 5.0
+#: The capacitance tolerance of a scene that sets no mesh sizes.
+DEFAULT_TOLERANCE = 0.01
+
+
+@dataclass(frozen=True)
+class Rung:
+    """Mesh settings of the ladder: element ``order``, outline edge as a multiple of the
+    dielectric gap, ``elements_per_layer``, growth ``slope`` of the edge length in the
+    fringe zone, and the measured fringe error per unit edge over the permittivity,
+    ``e_over_eps``."""
+
+    order: int
+    outline_over_gap: float
+    elements_per_layer: int
+    slope: float
+    e_over_eps: float
+
+    @property
+    def label(self) -> str:
+        return f"P{self.order} h {self.outline_over_gap:g}d x{self.elements_per_layer} slope {self.slope:g}"
+
+
+#: From the cheapest to the most accurate (by unknowns on the 20 mm square, 13k to 600k);
+#: e/ε is the largest over the four calibration plates, rounded up
+#: (``.venv/bin/python benchmarks/plate_size.py``, docs/plate_size.csv). P1 with 2 elements
+#: per layer (0.14 at 79k unknowns) is left out: P2 at 2d, slope 1 matches it at 52k.
+LADDER: tuple[Rung, ...] = (
+    Rung(1, 1.0, 1, 1.0, 0.44),
+    Rung(1, 1.0, 1, 0.5, 0.36),
+    Rung(1, 0.5, 1, 1.0, 0.30),
+    Rung(1, 0.5, 1, 0.5, 0.26),
+    Rung(2, 2.0, 1, 1.0, 0.15),
+    Rung(2, 2.0, 1, 0.5, 0.12),
+    Rung(2, 1.5, 1, 0.5, 0.08),
+    Rung(2, 1.0, 1, 0.5, 0.05),
+    Rung(2, 0.5, 2, 0.5, 0.017),
+)
+
+
+def rung_settings(rung: Rung, gap_mm: float, stack_mm: float, far_mm: float = FAR_EDGE_MM) -> MeshSettings:
+    """The mesh settings of ``rung`` for a dielectric gap of ``gap_mm`` in a stack ``stack_mm`` thick."""
+    near = min(rung.outline_over_gap * gap_mm, far_mm)
+    return MeshSettings(far_mm, near, max((far_mm - near) / STEEP, near), rung.elements_per_layer, rung.order,
+                        fringe_distance_mm=FRINGE_STACKS * stack_mm, fringe_slope=rung.slope)
+
+
+def predicted_errors(rung: Rung, outlines: Sequence[np.ndarray], gap_mm: float) -> np.ndarray:
+    """Relative capacitance error of each plate on ``rung``'s mesh: (e/ε) P d / A."""
+    ratios = [np.sum(np.linalg.norm(np.roll(o, -1, axis=0) - o, axis=1)) * gap_mm / abs(geometry.signed_area(o))
+              for o in outlines]
+    return rung.e_over_eps * np.array(ratios)
+
+
+def settings_for_tolerance(tolerance: float, outlines: Sequence[np.ndarray], gap_mm: float, stack_mm: float,
+                           far_mm: float = FAR_EDGE_MM) -> tuple[MeshSettings, Rung, float]:
+    """The cheapest rung whose predicted error is within ``tolerance`` on every plate.
+
+    Returns its settings, the rung and the largest predicted error. When no rung reaches
+    the tolerance (plates much smaller than a few millimetres), the most accurate rung,
+    with a warning naming the predicted error."""
+    for rung in LADDER:
+        worst = float(predicted_errors(rung, outlines, gap_mm).max())
+        if worst <= tolerance:
+            return rung_settings(rung, gap_mm, stack_mm, far_mm), rung, worst
+    log.warning("mesh tolerance %.3g: the finest mesh of the ladder predicts %.3g on the smallest plate; "
+                "using it", tolerance, worst)
+    return rung_settings(rung, gap_mm, stack_mm, far_mm), rung, worst
+
+
+def sized(mesh: MeshSettings, layers: Sequence[Layer], layout: Layout) -> tuple[MeshSettings, float]:
+    """``mesh`` sized for its tolerance on ``layout``'s plates, its overrides applied; and
+    the largest predicted error. Settings set by hand (no tolerance) come back as they are,
+    with NaN."""
+    if mesh.tolerance is None:
+        return mesh, float("nan")
+    stack = sum(layer.thickness_mm for layer in layers)
+    far = dict(mesh.overrides).get("edge_length_mm", FAR_EDGE_MM)
+    settings, _, worst = settings_for_tolerance(mesh.tolerance, layout.outlines, layers[2].thickness_mm, stack, far)
+    return replace(settings, tolerance=mesh.tolerance, overrides=mesh.overrides, **dict(mesh.overrides)), worst
+
+
+def with_layout(scene: Scene, layout: Layout) -> Scene:
+    """``scene`` with ``layout``, its mesh re-sized for that layout's plates when the scene
+    gives a tolerance (each multi-start run is sized for its own initial layout)."""
+    return replace(scene, layout=layout, mesh=sized(scene.mesh, scene.layers, layout)[0])
