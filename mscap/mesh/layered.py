@@ -253,6 +253,6 @@ def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
     h = settings.edge_length_mm
     outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
     mesh2d = triangulate(scene.sheet_outline_mm, elastic_layout(scene.layout, scene.sheet_outline_mm, outline),
-                         replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline))
+                         replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0))
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
                    slabs=settings.elements_through_thickness or None)

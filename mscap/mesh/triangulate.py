@@ -8,7 +8,9 @@ size field grades the edge length from ``edge_length_outline_mm`` on the outline
 varies over the dielectric gap, so a uniform mesh overestimates capacitance. With a
 ``fringe_distance_mm``, the edge length grows no faster than ``fringe_slope`` within that
 distance of the outlines (where the fringe field lives) and at the ``grading_distance_mm``
-rate beyond it: the larger of two Threshold fields.
+rate beyond it: the larger of two Threshold fields. Within ``zones`` (discs under poke
+balls) the edge length is at most the zone's size, growing at ZONE_SLOPE beyond (gmsh Ball
+fields, the smallest size wins).
 """
 
 from __future__ import annotations
@@ -19,12 +21,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from mscap.errors import MeshError
+from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import Layout
 from mscap.scene.settings import MeshSettings
 
 __all__ = ["TriMesh", "triangulate"]
 
 log = logging.getLogger(__name__)
+
+#: Growth of the edge length away from a refinement zone (mm per mm).
+ZONE_SLOPE = 0.5
 
 
 @dataclass(frozen=True)
@@ -60,16 +66,22 @@ class TriMesh:
         return np.unique(pairs, axis=0)
 
 
-def _add_loop(geo, polygon: np.ndarray, spacing: float | None = None) -> tuple[int, list[int]]:
+def _add_loop(geo, polygon: np.ndarray, spacing: float | None = None, zones=()) -> tuple[int, list[int]]:
     """A closed polyline as a gmsh curve loop; with ``spacing``, each segment gets
     uniform nodes at most ``spacing`` apart (transfinite), so gmsh's 1D mesher does not
-    integrate the size field along it (that cost ~10 s at 0.075 mm on grid3x3)."""
+    integrate the size field along it (that cost ~10 s at 0.075 mm on grid3x3); a segment
+    that comes within a zone's radius gets at most the zone's size."""
     points = [geo.addPoint(float(x), float(y), 0.0) for x, y in polygon]
     lines = [geo.addLine(points[i], points[(i + 1) % len(points)]) for i in range(len(points))]
     if spacing is not None:
-        lengths = np.linalg.norm(np.roll(polygon, -1, axis=0) - polygon, axis=1)
-        for line, length in zip(lines, lengths):
-            geo.mesh.setTransfiniteCurve(line, int(np.ceil(length / spacing - 1e-9)) + 1)
+        ends = np.roll(polygon, -1, axis=0)
+        lengths = np.linalg.norm(ends - polygon, axis=1)
+        spacings = np.full(len(polygon), float(spacing))
+        for x, y, radius, size in zones:
+            near = geometry.point_segment_distance(np.array([[x, y]]), np.stack([polygon, ends], axis=1))[0] < radius
+            spacings[near] = np.minimum(spacings[near], size)
+        for line, length, step in zip(lines, lengths, spacings):
+            geo.mesh.setTransfiniteCurve(line, int(np.ceil(length / step - 1e-9)) + 1)
     return geo.addCurveLoop(lines), lines
 
 
@@ -102,7 +114,7 @@ def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSett
         geo = gmsh.model.geo
         loops, outline_curves = [], []
         for outline in layout.outlines:
-            loop, lines = _add_loop(geo, outline, settings.edge_length_outline_mm)
+            loop, lines = _add_loop(geo, outline, settings.edge_length_outline_mm, settings.zones)
             loops.append(loop)
             outline_curves.extend(lines)
         sheet_loop, _ = _add_loop(geo, sheet_outline_mm)
@@ -127,6 +139,17 @@ def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSett
             late = _threshold(field, distance, near, far, start, start + settings.grading_distance_mm)
             ramp = field.add("Max")
             field.setNumbers(ramp, "FieldsList", [gentle, late])
+        if settings.zones:
+            balls = []
+            for x, y, radius, size in settings.zones:
+                ball = field.add("Ball")
+                for key, value in dict(XCenter=x, YCenter=y, ZCenter=0.0, Radius=radius, VIn=min(size, far), VOut=far,
+                                       Thickness=max(far - size, 0.0) / ZONE_SLOPE).items():
+                    field.setNumber(ball, key, value)
+                balls.append(ball)
+            smallest = field.add("Min")
+            field.setNumbers(smallest, "FieldsList", [ramp] + balls)
+            ramp = smallest
         field.setAsBackgroundMesh(ramp)
         for option in ("MeshSizeExtendFromBoundary", "MeshSizeFromPoints", "MeshSizeFromCurvature"):
             gmsh.option.setNumber(f"Mesh.{option}", 0)

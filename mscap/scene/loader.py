@@ -61,11 +61,11 @@ def load_scene(path: str | Path) -> Scene:
     mesh_table = root.table("mesh", required=False) or Table(path, "mesh", {})
     mesh = _read_mesh(mesh_table, layers)
     layout, min_gap = _read_capacitors(root.table("capacitors"), sheet, mesh)
-    if mesh.tolerance is not None:
-        mesh = _size_mesh(mesh_table, mesh, layers, layout)
     objects = _read_objects(root, path)
     poses = _read_poses(root, objects)
     _check_pose_geometry(path, poses, sheet)
+    if mesh.tolerance is not None:  # the ladder for the plates, zones under the balls
+        mesh = _size_mesh(mesh_table, replace(mesh, zones=sizing.poke_zones(poses)), layers, layout)
     elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
     if "elements_through_thickness" not in data.get("elastic", {}):
         elastic = replace(elastic, elements_through_thickness=auto_slabs(layers))

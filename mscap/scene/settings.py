@@ -90,7 +90,10 @@ class MeshSettings:
     the scene set them by hand; ``overrides``, the ``(key, value)`` pairs the scene gave
     beside it, which win over the sizes the tolerance asks for. Within
     ``fringe_distance_mm`` of the outlines the edge length grows no faster than
-    ``fringe_slope`` (0: one ramp over ``grading_distance_mm``)."""
+    ``fringe_slope`` (0: one ramp over ``grading_distance_mm``). ``zones``: ``(x, y,
+    radius, size)`` discs (mm) within which no edge is longer than ``size``, growing at 0.5
+    mm per mm beyond (under the balls of poke poses, :func:`mscap.mesh.sizing.poke_zones`);
+    both the electrostatic and the elastic mesh follow them."""
 
     edge_length_mm: float
     edge_length_outline_mm: float
@@ -101,6 +104,7 @@ class MeshSettings:
     fringe_distance_mm: float = 0.0
     fringe_slope: float = 0.5
     overrides: tuple[tuple[str, float], ...] = ()
+    zones: tuple[tuple[float, float, float, float], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -42,12 +42,13 @@ class ErrorEstimate:
 
 
 def finer(scene: Scene):
-    """``scene`` one level finer: every target edge length of ``[mesh]`` and
-    ``[elastic]`` halved; grading distances, slabs through the thickness and element
+    """``scene`` one level finer: every target edge length of ``[mesh]`` (its refinement
+    zones' too) and ``[elastic]`` halved; grading distances, slabs through the thickness and element
     orders kept (the field through a thin layer is resolved by the slabs already,
     docs/electrostatics.md)."""
     mesh = replace(scene.mesh, edge_length_mm=scene.mesh.edge_length_mm / 2,
-                   edge_length_outline_mm=scene.mesh.edge_length_outline_mm / 2)
+                   edge_length_outline_mm=scene.mesh.edge_length_outline_mm / 2,
+                   zones=tuple((x, y, radius, size / 2) for x, y, radius, size in scene.mesh.zones))
     el = scene.elastic
     elastic = replace(el, edge_length_mm=el.edge_length_mm / 2,
                       edge_length_outline_mm=None if el.edge_length_outline_mm is None

@@ -123,3 +123,27 @@ def test_each_layout_is_sized_for_its_own_plates_and_hand_sizes_stay(tmp_path):
     hand = plate_scene(tmp_path, "square 20", {"edge_length_mm": 5.0, "edge_length_outline_mm": 0.3,
                                                "grading_distance_mm": 2.0})
     assert sizing.with_layout(hand, small).mesh == hand.mesh
+
+
+def test_both_meshes_are_refined_under_each_ball(tmp_path):
+    # A poke pose's ball of radius R gets edges of at most R/8 within 1.5 R of its centre,
+    # in the electrostatic and the elastic mesh (finer elastic edges alone would be sampled
+    # by coarser electrostatic vertices; docs/electrostatics.md).
+    from mscap.mesh.layered import mesh_elastic
+    from tests.scenes import poke_scene_dict
+
+    data = poke_scene_dict()  # a 5 mm ball at (15, 15) on a 30 mm sheet
+    del data["mesh"]
+    data["elastic"] = {"edge_length_mm": 4.0}
+    path = tmp_path / "poke.toml"
+    path.write_text(to_toml(data))
+    scene = load_scene(path)
+    assert scene.mesh.zones == ((15.0, 15.0, 7.5, 0.625),)
+    electro = mesh_scene(scene)
+    for mesh in (electro.mesh2d, mesh_elastic(scene, electro).mesh2d):
+        pairs = mesh.edges()
+        lengths = np.linalg.norm(mesh.points[pairs[:, 0]] - mesh.points[pairs[:, 1]], axis=1)
+        middle = np.linalg.norm(0.5 * (mesh.points[pairs[:, 0]] + mesh.points[pairs[:, 1]]) - 15.0, axis=1)
+        inside = middle < 7.0
+        assert inside.sum() > 300 and lengths[inside].max() < 1.5 * 0.625, lengths[inside].max()
+        assert lengths[middle > 12.0].max() > 2.0  # coarser away from the ball
