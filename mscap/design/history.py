@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HISTORY_FIELDS", "Record", "min_pairwise_l1"]
+__all__ = ["HISTORY_FIELDS", "Record", "min_pairwise_l1", "pairwise_l1"]
 
 #: History columns, in order: iteration (accepted steps so far), cascade level, J and its
 #: parts (d in pF², barrier and smoothing unweighted, mm²), ‖dJ/dq‖ (2-norm), the step
@@ -45,8 +45,15 @@ class Record:
         return [getattr(self, name) for name in HISTORY_FIELDS]
 
 
-def min_pairwise_l1(capacitance_pF: np.ndarray) -> float:
-    """Smallest L1 distance (pF) between the capacitance vectors of two poses."""
+def pairwise_l1(capacitance_pF: np.ndarray) -> np.ndarray:
+    """L1 distances (pF) between the capacitance vectors of every two poses, pairs in
+    ``np.triu_indices`` order."""
     c = np.asarray(capacitance_pF, dtype=float)
     a, b = np.triu_indices(len(c), 1)
-    return float(np.abs(c[a] - c[b]).sum(axis=1).min()) if len(a) else 0.0
+    return np.abs(c[a] - c[b]).sum(axis=1)
+
+
+def min_pairwise_l1(capacitance_pF: np.ndarray) -> float:
+    """Smallest L1 distance (pF) between the capacitance vectors of two poses."""
+    distances = pairwise_l1(capacitance_pF)
+    return float(distances.min()) if len(distances) else 0.0

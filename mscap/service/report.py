@@ -75,15 +75,17 @@ def table(selection, title: str = "", errors: dict | None = None) -> str:
 
 def runs_table(records) -> str:
     """One line per run: status, iterations, the metric and its value on the finer mesh,
-    the error estimate, the run's wall time and the check's."""
+    the error estimates of C and of the pose-to-pose distances, the run's wall time and
+    the check's."""
     lines = [f"{'run':<20} {'status':<6} {'its':>4} {'bound (mm)':>15} {'min L1 (pF)':>12} {'finer (pF)':>11} "
-             f"{'error':>8} {'time (s)':>9} {'check (s)':>9}"]
+             f"{'error C':>8} {'signal':>8} {'time (s)':>9} {'check (s)':>9}"]
     for r in records:
         def number(x, fmt):
             return format(x, fmt) if math.isfinite(x) else "-"
         bound = "-" if not math.isfinite(r.bound_mm) else f"{r.initial_bound_mm:.3g} → {r.bound_mm:.3g}"
         lines.append(f"{r.id:<20} {r.status:<6} {r.iterations:>4} {bound:>15} {number(r.metric, '.6g'):>12} "
-                     f"{number(r.finer_metric_pF, '.6g'):>11} {_percent(r.error_estimate):>8} {r.wall_s:>9.1f} "
+                     f"{number(r.finer_metric_pF, '.6g'):>11} {_percent(r.error_estimate):>8} "
+                     f"{_percent(r.signal_error):>8} {r.wall_s:>9.1f} "
                      f"{number(r.error_estimate_wall_s, '.1f'):>9}")
     return "\n".join(lines)
 
@@ -102,8 +104,10 @@ def history_text(record) -> str:
         lines.append(f"read-back bound: {record.initial_bound_mm:.4g} mm initial, {record.bound_mm:.4g} mm final "
                      "(history column d is minus the bound)")
     if math.isfinite(record.error_estimate):
-        lines.append(f"on a mesh one level finer: min pairwise L1 {record.finer_metric_pF:.6g} pF, capacitances "
-                     f"within {_percent(record.error_estimate)} (check took {record.error_estimate_wall_s:.1f} s)")
+        lines.append(f"on a mesh one level finer: min pairwise L1 {record.finer_metric_pF:.6g} pF "
+                     f"({_percent(record.metric_error)} off), capacitances within {_percent(record.error_estimate)}, "
+                     f"pose-to-pose distances within {_percent(record.signal_error)} "
+                     f"(check took {record.error_estimate_wall_s:.1f} s)")
     names = list(HISTORY_COLUMNS)
     lines.append("\t".join(names))
     columns = [record.history[n] for n in names]

@@ -22,7 +22,7 @@ import h5py
 import numpy as np
 
 from mscap import __version__
-from mscap.design.history import min_pairwise_l1, HISTORY_FIELDS
+from mscap.design.history import min_pairwise_l1, pairwise_l1, HISTORY_FIELDS
 from mscap.errors import StoreError
 from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
@@ -204,6 +204,21 @@ class RunRecord:
     def finer_metric_pF(self) -> float:
         """Min pairwise L1 distance on the finer mesh (pF); NaN if not checked."""
         return min_pairwise_l1(self.finer_capacitance_pF) if self.checked else math.nan
+
+    @property
+    def signal_error(self) -> float:
+        """Largest relative difference of a pose-to-pose L1 distance ‖C_a − C_b‖₁ (the
+        signal the objective and the k choice read) from the finer mesh's; NaN if not
+        checked. Differences of capacitances carry more relative error than C itself."""
+        if not self.checked or len(self.finer_capacitance_pF) < 2:
+            return math.nan
+        return relative_difference(pairwise_l1(self.final_capacitance_pF), pairwise_l1(self.finer_capacitance_pF))
+
+    @property
+    def metric_error(self) -> float:
+        """Relative difference of the metric (min pairwise L1) from the finer mesh's; NaN if
+        not checked."""
+        return abs(self.metric - self.finer_metric_pF) / abs(self.finer_metric_pF) if self.checked else math.nan
 
 
 def record_from_result(k: int, seed: int, init: str, initial_layout, result, poses, wall_s: float,

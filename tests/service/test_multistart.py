@@ -105,6 +105,14 @@ def test_every_run_stores_its_finer_mesh_check(three_ranks, scene_file):
     np.testing.assert_allclose(record.finer_capacitance_pF, fine, rtol=1e-9)
     assert record.error_estimate == pytest.approx(relative_difference(record.final_capacitance_pF, fine), rel=1e-9)
     assert record.error_estimate_wall_s > 0 and record.finer_metric_pF > 0
+    # the pose-to-pose distances' error, pair by pair, and the metric's
+    coarse_c, fine_c = record.final_capacitance_pF, fine
+    n = len(fine_c)
+    pairs = [(a, b) for a in range(n) for b in range(a + 1, n)]
+    worst = max(abs(np.abs(coarse_c[a] - coarse_c[b]).sum() / np.abs(fine_c[a] - fine_c[b]).sum() - 1)
+                for a, b in pairs)
+    assert record.signal_error == pytest.approx(worst, rel=1e-9)
+    assert record.metric_error == pytest.approx(abs(record.metric / record.finer_metric_pF - 1), rel=1e-9)
 
 
 @needs_mpirun
