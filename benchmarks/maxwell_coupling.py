@@ -12,7 +12,7 @@ plates of the same layer), top–bottom across (top plate 0 and bottom plate 1) 
 diagonal C_top0 for comparison. Reference: P2, outline edge and elements per layer refined
 together (0.3 / 0.15 / 0.075 mm with 1 / 2 / 4 per layer), Richardson per entry at the
 observed order. Settings: the hand-set paper mesh and the rungs of the tolerance ladder
-(``mscap.mesh.sizing.LADDER``).
+(``mscap.scene.sizing.LADDER``).
 
 Run (about 15 minutes on one core)::
 
@@ -43,7 +43,7 @@ from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.geometry.layout import Layout  # noqa: E402
 from mscap.geometry.polygons import square  # noqa: E402
 from mscap.mesh.layered import mesh_scene  # noqa: E402
-from mscap.mesh.sizing import LADDER, rung_settings  # noqa: E402
+from mscap.scene.sizing import LADDER, rung_settings  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.scene.settings import MeshSettings  # noqa: E402
 

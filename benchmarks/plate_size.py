@@ -4,7 +4,7 @@ The default mesh overestimates each plate's fringe by an amount per millimetre o
 edge, so its relative error grows as plates shrink. This script measures that error per
 unit of edge for a ladder of mesh settings ("rungs") on single plates of several sizes and
 shapes, against converged references, and prints the constants that
-``mscap.mesh.sizing.LADDER`` pins.
+``mscap.scene.sizing.LADDER`` pins.
 
 Plates: squares of 6, 10 and 20 mm and a 10 mm disk (a fixed 128-gon, so every mesh sees
 the same polygon), each centred on a sheet with a 10 mm margin, in the stack of
@@ -15,7 +15,7 @@ Reference per plate: P2, the outline edge and the elements per layer refined tog
 (outline 0.4, 0.2, 0.1 mm with 1, 2, 4 elements per layer; far edge 2 mm, grading 3 mm)
 and Richardson-extrapolated from the three levels with the observed order.
 
-Rungs (``mscap.mesh.sizing.LADDER``): order, outline edge as a multiple of the dielectric
+Rungs (``mscap.scene.sizing.LADDER``): order, outline edge as a multiple of the dielectric
 gap d, elements per layer, and the slope (mm per mm) at which the edge length grows within
 4 stack thicknesses of the outlines (the fringe zone); beyond it, at 2 up to 5 mm.
 Error per unit edge: e = (C − C*) / P, reported as e / ε (dimensionless: the fringe
@@ -55,7 +55,7 @@ from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.geometry.layout import Layout  # noqa: E402
 from mscap.geometry.polygons import disk, square  # noqa: E402
 from mscap.mesh.layered import mesh_scene  # noqa: E402
-from mscap.mesh.sizing import FRINGE_STACKS, LADDER, STEEP, Rung, rung_settings  # noqa: E402
+from mscap.scene.sizing import FRINGE_STACKS, LADDER, STEEP, Rung, rung_settings  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.scene.settings import MeshSettings  # noqa: E402
 

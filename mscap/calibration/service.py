@@ -136,7 +136,7 @@ def _simulate_chunk(scene: Scene, design: Candidate, poses: tuple, mesh=None) ->
     A chunk that fails is redone pose by pose so only the failing poses are lost (NaN)."""
     from mscap.mesh.layered import mesh_scene
     from mscap.fem.simulate import simulate
-    from mscap.mesh.sizing import with_layout
+    from mscap.scene.sizing import with_layout
 
     s = replace(with_layout(scene, Layout(design.outlines)), poses=poses)  # sized for its plates
     mesh = mesh or mesh_scene(s)

@@ -36,7 +36,7 @@ def run(args) -> int:
     from mscap.design.pipeline import build_design
     from mscap.design.readback import design_scene
     from mscap.geometry.initial import initial_layout
-    from mscap.mesh.sizing import with_layout
+    from mscap.scene.sizing import with_layout
     from mscap.service.designs import OPTIMIZE_FILES, write_optimize_output
 
     scene = design_scene(load_scene_for(args))  # the design poses: listed, or from the family

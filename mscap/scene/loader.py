@@ -19,7 +19,7 @@ import numpy as np
 from mscap.errors import GeometryError, SceneError
 from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import SHAPES, Layout, check_layout, grid_layout
-from mscap.mesh import sizing
+from mscap.scene import sizing
 from mscap.scene._toml import Table
 from mscap.scene.calibration import CalibrationSettings, read_calibration
 from mscap.scene.poses import read_pose

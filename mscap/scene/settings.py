@@ -86,13 +86,13 @@ class Layer:
 @dataclass(frozen=True)
 class MeshSettings:
     """Target sizes for the 2D triangulation and the extrusion. ``tolerance``: the relative
-    capacitance error the sizes were chosen for (:mod:`mscap.mesh.sizing`), None when
+    capacitance error the sizes were chosen for (:mod:`mscap.scene.sizing`), None when
     the scene set them by hand; ``overrides``, the ``(key, value)`` pairs the scene gave
     beside it, which win over the sizes the tolerance asks for. Within
     ``fringe_distance_mm`` of the outlines the edge length grows no faster than
     ``fringe_slope`` (0: one ramp over ``grading_distance_mm``). ``zones``: ``(x, y,
     radius, size)`` discs (mm) within which no edge is longer than ``size``, growing at 0.5
-    mm per mm beyond (under the balls of poke poses, :func:`mscap.mesh.sizing.poke_zones`);
+    mm per mm beyond (under the balls of poke poses, :func:`mscap.scene.sizing.poke_zones`);
     both the electrostatic and the elastic mesh follow them."""
 
     edge_length_mm: float

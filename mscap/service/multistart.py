@@ -53,7 +53,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     ``(k, step, score)`` at each rung (:func:`mscap.service.pruning.score`) and answers with a
     :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned."""
     from mscap.design.pipeline import build_design
-    from mscap.mesh.sizing import with_layout
+    from mscap.scene.sizing import with_layout
     from mscap.geometry.initial import initial_layout
     from mscap.design.optimizer import optimize
 

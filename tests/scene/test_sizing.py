@@ -10,7 +10,7 @@ import pytest
 
 from mscap.fem import electrostatic as es
 from mscap.geometry.polygons import disk, square
-from mscap.mesh import sizing
+from mscap.scene import sizing
 from mscap.mesh.layered import mesh_scene
 from mscap.scene import load_scene
 from tests.conftest import to_toml
