@@ -116,13 +116,18 @@ def predicted_errors(rung: Rung, outlines: Sequence[np.ndarray], gap_mm: float) 
 
 
 def settings_for_tolerance(tolerance: float, outlines: Sequence[np.ndarray], gap_mm: float, stack_mm: float,
-                           far_mm: float = FAR_EDGE_MM) -> tuple[MeshSettings, Rung, float]:
-    """The cheapest rung whose predicted error is within ``tolerance`` on every plate.
+                           far_mm: float = FAR_EDGE_MM, order: int | None = None,
+                           elements_per_layer: int | None = None) -> tuple[MeshSettings, Rung, float]:
+    """The cheapest rung whose predicted error is within ``tolerance`` on every plate,
+    among the rungs of ``order`` and ``elements_per_layer`` when given (a scene that fixes
+    them).
 
     Returns its settings, the rung and the largest predicted error. When no rung reaches
     the tolerance (plates much smaller than a few millimetres), the most accurate rung,
     with a warning naming the predicted error."""
-    for rung in LADDER:
+    ladder = [rung for rung in LADDER if order in (None, rung.order)
+              and elements_per_layer in (None, rung.elements_per_layer)] or list(LADDER)
+    for rung in ladder:
         worst = float(predicted_errors(rung, outlines, gap_mm).max())
         if worst <= tolerance:
             return rung_settings(rung, gap_mm, stack_mm, far_mm), rung, worst
@@ -138,8 +143,10 @@ def sized(mesh: MeshSettings, layers: Sequence[Layer], layout: Layout) -> tuple[
     if mesh.tolerance is None:
         return mesh, float("nan")
     stack = sum(layer.thickness_mm for layer in layers)
-    far = dict(mesh.overrides).get("edge_length_mm", FAR_EDGE_MM)
-    settings, _, worst = settings_for_tolerance(mesh.tolerance, layout.outlines, layers[2].thickness_mm, stack, far)
+    given = dict(mesh.overrides)
+    settings, _, worst = settings_for_tolerance(mesh.tolerance, layout.outlines, layers[2].thickness_mm, stack,
+                                                given.get("edge_length_mm", FAR_EDGE_MM), given.get("order"),
+                                                given.get("elements_per_layer"))
     return replace(settings, tolerance=mesh.tolerance, overrides=mesh.overrides, zones=mesh.zones,
                    **dict(mesh.overrides)), worst
 

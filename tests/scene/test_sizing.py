@@ -147,3 +147,14 @@ def test_both_meshes_are_refined_under_each_ball(tmp_path):
         inside = middle < 7.0
         assert inside.sum() > 300 and lengths[inside].max() < 1.5 * 0.625, lengths[inside].max()
         assert lengths[middle > 12.0].max() > 2.0  # coarser away from the ball
+
+
+def test_a_scene_that_fixes_the_order_gets_the_best_rung_of_that_order(tmp_path):
+    # A 6 mm plate at 1 % needs P2 (measured P1 at d/2: +2.2 %); with `order = 1` given,
+    # the ladder keeps to P1 rungs and takes the most accurate, predicting more than 1 %.
+    free = plate_scene(tmp_path, "square 6", {"tolerance": 0.01})
+    p1 = plate_scene(tmp_path, "square 6", {"tolerance": 0.01, "order": 1})
+    assert free.mesh.order == 2 and p1.mesh.order == 1
+    best_p1 = [rung for rung in sizing.LADDER if rung.order == 1][-1]
+    assert p1.mesh.edge_length_outline_mm == pytest.approx(best_p1.outline_over_gap * GAP_MM)
+    assert p1.mesh.fringe_slope == best_p1.slope
