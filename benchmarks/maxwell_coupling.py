@@ -38,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import table_head, write_csv  # noqa: E402
+from benchmarks.scene_accuracy import richardson  # noqa: E402
 from mscap.fem.electrostatic import build_problem, solve  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.geometry.layout import Layout  # noqa: E402
@@ -80,9 +81,7 @@ def main(argv=None):
     rows = []
     for gap in args.gaps:
         levels = [maxwell(scene, gap, MeshSettings(2.0, h, 3.0, n, 2))[0] for h, n in REFERENCE_LEVELS]
-        c1, c2, c3 = levels
-        order = np.log2(np.abs((c1 - c2) / np.where(c2 == c3, np.nan, c2 - c3)))
-        reference = c3 + (c3 - c2) / (2.0 ** order - 1.0)
+        reference, order, _ = richardson(*levels, ratio=2.0)
         print(f"gap {gap} mm: reference " + ", ".join(f"{name} {reference[i, j]:.5f} pF (order {order[i, j]:.2f})"
                                                    for name, i, j in ENTRIES), flush=True)
         for label, mesh in settings:

@@ -50,6 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import table_head, write_csv  # noqa: E402
+from benchmarks.scene_accuracy import richardson  # noqa: E402
 from mscap.fem.electrostatic import build_problem, solve  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.geometry.layout import Layout  # noqa: E402
@@ -84,9 +85,8 @@ def capacitance(scene, plate, settings):
 
 def reference(scene, plate):
     levels = [capacitance(scene, plate, MeshSettings(2.0, h, 3.0, n, 2))[0] for h, n in REFERENCE_LEVELS]
-    c1, c2, c3 = levels
-    p = float(np.log2(abs((c1 - c2) / (c2 - c3))))
-    return c3 + (c3 - c2) / (2.0 ** p - 1.0), p, levels
+    c_ref, p, _ = richardson(*levels, ratio=2.0)
+    return float(c_ref), float(p), levels
 
 
 def main(argv=None):

@@ -74,11 +74,11 @@ def _add_loop(geo, polygon: np.ndarray, spacing: float | None = None, zones=()) 
     points = [geo.addPoint(float(x), float(y), 0.0) for x, y in polygon]
     lines = [geo.addLine(points[i], points[(i + 1) % len(points)]) for i in range(len(points))]
     if spacing is not None:
-        ends = np.roll(polygon, -1, axis=0)
-        lengths = np.linalg.norm(ends - polygon, axis=1)
+        segments = geometry.edges(polygon)
+        lengths = np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)
         spacings = np.full(len(polygon), float(spacing))
         for x, y, radius, size in zones:
-            near = geometry.point_segment_distance(np.array([[x, y]]), np.stack([polygon, ends], axis=1))[0] < radius
+            near = geometry.point_segment_distance(np.array([[x, y]]), segments)[0] < radius
             spacings[near] = np.minimum(spacings[near], size)
         for line, length, step in zip(lines, lengths, spacings):
             geo.mesh.setTransfiniteCurve(line, int(np.ceil(length / step - 1e-9)) + 1)

@@ -195,7 +195,7 @@ def _read_mesh(t: Table, layers: tuple[Layer, ...]) -> MeshSettings:
 def _size_mesh(t: Table, given: MeshSettings, layers: tuple[Layer, ...], layout: Layout) -> MeshSettings:
     """The ladder's cheapest settings for the tolerance on the layout's plates; keys the
     scene gives win over the ladder's."""
-    keys = ("edge_length_mm", "edge_length_outline_mm", "grading_distance_mm", "elements_per_layer", "order")
+    keys = SIZE_KEYS + ("elements_per_layer", "order")
     mesh, worst = sizing.sized(replace(given, overrides=tuple((key, getattr(given, key)) for key in keys if t.has(key))),
                                layers, layout)
     if mesh.edge_length_outline_mm > mesh.edge_length_mm:

@@ -110,8 +110,8 @@ def rung_settings(rung: Rung, gap_mm: float, stack_mm: float, far_mm: float = FA
 
 def predicted_errors(rung: Rung, outlines: Sequence[np.ndarray], gap_mm: float) -> np.ndarray:
     """Relative capacitance error of each plate on ``rung``'s mesh: (e/ε) P d / A."""
-    ratios = [np.sum(np.linalg.norm(np.roll(o, -1, axis=0) - o, axis=1)) * gap_mm / abs(geometry.signed_area(o))
-              for o in outlines]
+    perimeters = [np.linalg.norm(np.diff(geometry.edges(o), axis=1)[:, 0], axis=1).sum() for o in outlines]
+    ratios = [p * gap_mm / abs(geometry.signed_area(o)) for p, o in zip(perimeters, outlines)]
     return rung.e_over_eps * np.array(ratios)
 
 
