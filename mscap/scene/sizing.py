@@ -147,8 +147,11 @@ def sized(mesh: MeshSettings, layers: Sequence[Layer], layout: Layout) -> tuple[
     settings, _, worst = settings_for_tolerance(mesh.tolerance, layout.outlines, layers[2].thickness_mm, stack,
                                                 given.get("edge_length_mm", FAR_EDGE_MM), given.get("order"),
                                                 given.get("elements_per_layer"))
-    return replace(settings, tolerance=mesh.tolerance, overrides=mesh.overrides, zones=mesh.zones,
-                   **dict(mesh.overrides)), worst
+    settings = replace(settings, tolerance=mesh.tolerance, overrides=mesh.overrides, **given)
+    # no zone finer than the outlines: a tiny ball would otherwise ask gmsh for nanometre
+    # edges along any outline it touches
+    zones = tuple((x, y, radius, max(size, settings.edge_length_outline_mm)) for x, y, radius, size in mesh.zones)
+    return replace(settings, zones=zones), worst
 
 
 def poke_zones(poses) -> tuple[tuple[float, float, float, float], ...]:

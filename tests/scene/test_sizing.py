@@ -158,3 +158,18 @@ def test_a_scene_that_fixes_the_order_gets_the_best_rung_of_that_order(tmp_path)
     best_p1 = [rung for rung in sizing.LADDER if rung.order == 1][-1]
     assert p1.mesh.edge_length_outline_mm == pytest.approx(best_p1.outline_over_gap * GAP_MM)
     assert p1.mesh.fringe_slope == best_p1.slope
+
+
+def test_a_tiny_ball_asks_for_no_edge_finer_than_the_outlines(tmp_path):
+    # R/8 of a 1 µm ball on a plate's edge would put 1e7 nodes on that edge.
+    from tests.scenes import poke_scene_dict
+
+    data = poke_scene_dict()
+    del data["mesh"]
+    data["poses"][1].update(center_mm=[10.0, 15.0], radius_mm=1e-3, depth_mm=0.1)  # on the plate's left edge
+    path = tmp_path / "tiny.toml"
+    path.write_text(to_toml(data))
+    scene = load_scene(path)
+    (zone,) = scene.mesh.zones
+    assert zone[3] == scene.mesh.edge_length_outline_mm
+    assert len(mesh_scene(scene).mesh2d.points) < 50_000
