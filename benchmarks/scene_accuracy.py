@@ -30,6 +30,15 @@ the finest one is the reference. ``estimate`` is what a multi-start run stores
 the same orders, where the level f/2 ran; for a rate p the error should be about
 estimate · 2ᵖ/(2ᵖ − 1), and the two columns side by side show whether it is.
 
+The signal. The objective and the k choice read differences of capacitances between
+poses, not C: per level, ``signal_error`` is the worst relative error of a pose-to-pose
+L1 distance ‖C_a − C_b‖₁ and ``metric_error`` that of the smallest one (the paper's
+min-L1 metric), against the distances of the extrapolated C* (``_vs_finest`` against the
+finest level, ``_estimate`` against the level at half the edges, as a run stores them).
+Every finished level, its capacitance table included, is kept in
+``docs/scene_accuracy_levels.json``; ``--reuse`` rebuilds the tables from it (or resumes
+an interrupted run) without simulating again.
+
 Cost, one idle core. From the default costs (poking 5.6 s, poking_cross ~6 s, biaxial
 and pneumatic ~4 s, wrist 9.5 s, joystick 10.7 s, glove 22 s: ~62 s in all) and time ∝
 tets^1.35 with tets ×3–4 per halving, the levels cost about 0.07, 0.17, 0.4, 1, 2.4 and
@@ -56,8 +65,8 @@ directory)::
     .venv/bin/python benchmarks/scene_accuracy.py --scenes glove wrist --factors 2,1.41,1,0.71,0.5
     .venv/bin/python benchmarks/scene_accuracy.py --quick
 
-Writes ``docs/scene_accuracy.csv`` and ``docs/scene_accuracy.png`` (``--csv``/``--png``
-elsewhere) and prints a Markdown table per scene, the default's error and the cheapest
+Writes ``docs/scene_accuracy.csv``, ``docs/scene_accuracy.png`` and the levels file
+(``--csv``/``--png``/``--levels`` elsewhere) and prints a Markdown table per scene, the default's error and the cheapest
 level within 1 %, the issue's default accuracy target.
 """
 
@@ -96,7 +105,8 @@ TARGET = 0.01
 P_RANGE = (0.5, 4.0)
 FIELDS = ["scene", "factor", "electro_order", "elastic_order", "kind", "edge_length_outline_mm",
           "edge_length_mm", "elastic_edge_length_mm", "tets", "elastic_tets", "wall_s", "peak_rss_MB",
-          "error", "error_vs_finest", "estimate"]
+          "error", "error_vs_finest", "estimate", "signal_error", "signal_vs_finest", "signal_estimate",
+          "metric_error", "metric_vs_finest", "metric_estimate"]
 #: The columns a level's process measures.
 MEASURED = FIELDS[5:12]
 
@@ -226,8 +236,24 @@ def reference_of(levels, rows, default: Level):
                        + (f": {which}" if which else ""))
 
 
+def signal_errors(c, reference) -> tuple[float, float]:
+    """The relative errors of what a design reads at capacitances ``c`` against
+    ``reference`` (both ``(poses, k)``): the worst pose-to-pose L1 distance and the metric
+    (the smallest one), as a multi-start run stores them (``RunRecord.signal_error``,
+    ``metric_error``); NaN for a scene of one pose."""
+    from mscap.design.history import pairwise_l1
+    from mscap.service.accuracy import relative_difference
+
+    if reference is None or len(c) < 2:
+        return math.nan, math.nan
+    d, d_ref = pairwise_l1(c), pairwise_l1(reference)
+    return relative_difference(d, d_ref), float(abs(d.min() - d_ref.min()) / d_ref.min())
+
+
 def scene_rows(name: str, levels, rows, default: Level, reference) -> list[dict]:
-    """CSV rows of one scene: error against ``reference`` and the finer-mesh estimate."""
+    """CSV rows of one scene: error against ``reference`` and the finer-mesh estimate, of
+    the capacitances and of the pose-to-pose signal (:func:`signal_errors`; the reference
+    signal is the one of the extrapolated capacitances)."""
     from mscap.service.accuracy import relative_difference
 
     finished = [lv for lv in levels if lv.orders == default.orders and rows.get(lv)]
@@ -242,25 +268,34 @@ def scene_rows(name: str, levels, rows, default: Level, reference) -> list[dict]
         half = next((h for h in levels if h.orders == lv.orders and rows.get(h)
                      and math.isclose(h.factor, lv.factor / 2, rel_tol=0.02)), None)
         kind = "default" if lv == default else ("orders" if lv.orders != default.orders else "factor")
+        finer = None if half is None else np.array(rows[half]["capacitance_pF"])
+        signal = signal_errors(c, reference), signal_errors(c, finest), signal_errors(c, finer)
         out.append(dict(scene=name, factor=lv.factor, electro_order=lv.electro_order,
                         elastic_order=lv.elastic_order, kind=kind,
                         **{k: row[k] for k in MEASURED},
                         error=error, error_vs_finest=math.nan if finest is None else relative_difference(c, finest),
-                        estimate=math.nan if half is None else relative_difference(c, rows[half]["capacitance_pF"])))
+                        estimate=math.nan if finer is None else relative_difference(c, finer),
+                        signal_error=signal[0][0], signal_vs_finest=signal[1][0], signal_estimate=signal[2][0],
+                        metric_error=signal[0][1], metric_vs_finest=signal[1][1], metric_estimate=signal[2][1]))
     return out
 
 
 def markdown(rows) -> str:
     """One scene's levels as a Markdown table."""
-    head = ("| factor | electro/elastic | tets | elastic tets | wall s | peak MB | error % | vs finest % "
-            "| estimate % |")
+    head = ("| factor | electro/elastic | tets | elastic tets | wall s | peak MB | C error % | vs finest % "
+            "| estimate % | signal error % | vs finest % | estimate % | metric error % | vs finest % |")
     lines = table_head(head)
+
+    def pct(value):
+        return "" if math.isnan(value) else f"{100 * value:.3f}"
+
     for r in rows:
         mark = " ★" if r["kind"] == "default" else ""
-        estimate = "" if math.isnan(r["estimate"]) else f"{100 * r['estimate']:.3f}"
         lines.append(f"| {r['factor']:.3g}{mark} | P{r['electro_order']}/P{r['elastic_order']} | {r['tets']:,} "
                      f"| {r['elastic_tets']:,} | {r['wall_s']:.2f} | {r['peak_rss_MB']:.0f} "
-                     f"| {100 * r['error']:.3f} | {100 * r['error_vs_finest']:.3f} | {estimate} |")
+                     f"| {pct(r['error'])} | {pct(r['error_vs_finest'])} | {pct(r['estimate'])} "
+                     f"| {pct(r['signal_error'])} | {pct(r['signal_vs_finest'])} | {pct(r['signal_estimate'])} "
+                     f"| {pct(r['metric_error'])} | {pct(r['metric_vs_finest'])} |")
     return "\n".join(lines)
 
 
@@ -270,10 +305,16 @@ def summary(rows) -> str:
     within = [r for r in rows if r["error"] <= TARGET]
     cheapest = min(within, key=lambda r: r["wall_s"]) if within else None
     text = "default: not run" if default is None else (
-        f"default ★ error {100 * default['error']:.3f} % in {default['wall_s']:.2f} s")
+        f"default ★ error {100 * default['error']:.3f} % (signal {100 * default['signal_error']:.3f} %, metric "
+        f"{100 * default['metric_error']:.3f} %) in {default['wall_s']:.2f} s")
     text += "; nothing within 1 %" if cheapest is None else (
         f"; cheapest within 1 %: factor {cheapest['factor']:.3g}, P{cheapest['electro_order']}/"
         f"P{cheapest['elastic_order']}, {cheapest['wall_s']:.2f} s, error {100 * cheapest['error']:.3f} %")
+    on_signal = [r for r in rows if r["signal_error"] <= TARGET]
+    cheapest = min(on_signal, key=lambda r: r["wall_s"]) if on_signal else None
+    text += "; nothing within 1 % on the signal" if cheapest is None else (
+        f"; cheapest within 1 % on the signal: factor {cheapest['factor']:.3g}, P{cheapest['electro_order']}/"
+        f"P{cheapest['elastic_order']}, {cheapest['wall_s']:.2f} s, signal error {100 * cheapest['signal_error']:.3f} %")
     return text
 
 
@@ -297,6 +338,9 @@ def plot(rows, names, path: Path) -> None:
             return [r["wall_s"] for r in sel], [max(r[key], 1e-6) for r in sel]
 
         ax.loglog(*pts(chain), "o-", color="tab:blue", label="scene's orders, factors")
+        if any(not math.isnan(r["signal_error"]) for r in chain):
+            ax.loglog(*pts(chain, "signal_error"), "o:", mfc="none", color="tab:orange",
+                      label="pose-to-pose signal, same levels")
         with_estimate = [r for r in chain if not math.isnan(r["estimate"])]
         if with_estimate:
             ax.loglog(*pts(with_estimate, "estimate"), "x", color="gray", label="finer-mesh estimate")
@@ -316,7 +360,7 @@ def plot(rows, names, path: Path) -> None:
         ax.axhline(TARGET, color="gray", ls=":", lw=1, label="1 % target")
         ax.set_title(name, fontsize=10)
         ax.set_xlabel("forward wall time, one core (s)", fontsize=8)
-        ax.set_ylabel("max relative capacitance error", fontsize=8)
+        ax.set_ylabel("max relative error (C; signal dotted)", fontsize=8)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=6)
     fig.tight_layout()
@@ -324,20 +368,41 @@ def plot(rows, names, path: Path) -> None:
     fig.savefig(path, dpi=120)
 
 
-def run_scene(scene_path: str, factors, variants: bool, max_seconds: float) -> list[dict]:
+def _key(name: str, level: Level) -> str:
+    return f"{name} {level.factor:.6g} {level.electro_order} {level.elastic_order}"
+
+
+def load_levels(path: Path) -> dict:
+    """The stored levels (key → a level's measured row with its capacitance table)."""
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def run_scene(scene_path: str, factors, variants: bool, max_seconds: float, levels_path: Path | None = None,
+              reuse: bool = False) -> list[dict]:
     """Every level of one scene (finer ones at the same orders skipped once a level took
-    longer than ``max_seconds``), its reference, and its CSV rows."""
+    longer than ``max_seconds``), its reference, and its CSV rows. Each finished level
+    (its capacitance table included) goes into ``levels_path``; with ``reuse`` a level
+    found there is not run again (tables from stored levels, or a resumed run)."""
     from mscap.scene import load_scene
 
     name = Path(scene_path).stem
     default, levels = plan(load_scene(scene_path), factors, variants)
     print(f"{name}: {len(levels)} levels", flush=True)
     rows, slow = {}, {}
+    stored = load_levels(levels_path) if levels_path is not None else {}
     for lv in levels:
         if lv.factor < slow.get(lv.orders, 0.0):
             print(f"  {lv.label():<16} skipped: factor {slow[lv.orders]:.3g} took over {max_seconds:g} s", flush=True)
             continue
-        rows[lv] = run_level(scene_path, lv, timeout_s=2 * max_seconds)
+        if reuse and _key(name, lv) in stored:
+            rows[lv] = stored[_key(name, lv)]
+            print(f"  {lv.label():<16} stored: {rows[lv]['wall_s']:7.2f} s", flush=True)
+        else:
+            rows[lv] = run_level(scene_path, lv, timeout_s=2 * max_seconds)
+            if rows[lv] is not None and levels_path is not None:
+                stored = load_levels(levels_path)
+                stored[_key(name, lv)] = rows[lv]
+                levels_path.write_text(json.dumps(stored, indent=0))
         if rows[lv] is None or rows[lv]["wall_s"] > max_seconds:
             slow[lv.orders] = lv.factor
     reference, how = reference_of(levels, rows, default)
@@ -361,6 +426,10 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="smoke run: poking_quick, three levels, temp dir")
     parser.add_argument("--csv", help="CSV path (default docs/scene_accuracy.csv; --quick: a temporary directory)")
     parser.add_argument("--png", help="PNG path (default docs/scene_accuracy.png; --quick: a temporary directory)")
+    parser.add_argument("--levels", help="JSON file of every finished level with its capacitances (default "
+                        "docs/scene_accuracy_levels.json; --quick: a temporary directory)")
+    parser.add_argument("--reuse", action="store_true",
+                        help="take the levels found in --levels instead of running them again")
     parser.add_argument("--child", help=argparse.SUPPRESS)  # "factor,order,elastic_order": one level, JSON
     args = parser.parse_args(argv)
     names = args.scenes or (["poking_quick"] if args.quick else list(SCENES))
@@ -373,12 +442,13 @@ def main(argv=None):
     out_dir = Path(tempfile.mkdtemp(prefix="mscap_scene_accuracy_")) if args.quick else ROOT / "docs"
     csv_path = Path(args.csv or out_dir / "scene_accuracy.csv")
     png_path = Path(args.png or out_dir / "scene_accuracy.png")
+    levels_path = Path(args.levels or out_dir / "scene_accuracy_levels.json")
     factors = args.factors or (QUICK_FACTORS if args.quick else FACTORS)
     variants = (not args.quick) if args.variants is None else args.variants
     start = time.perf_counter()
     rows = []
     for path in paths:
-        rows += run_scene(path, factors, variants, args.max_seconds)
+        rows += run_scene(path, factors, variants, args.max_seconds, levels_path, args.reuse)
     write_csv(rows, csv_path, FIELDS)
     plot(rows, [Path(p).stem for p in paths], png_path)
     print("## Summary\n")

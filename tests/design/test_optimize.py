@@ -18,7 +18,7 @@ from mscap.cli import main
 from mscap.design.feasibility import feasible_step, max_step_triangles
 from mscap.design.history import HISTORY_FIELDS
 from mscap.design.optimizer import _LBFGS, optimize
-from mscap.design.pipeline import build_design
+from mscap.design.pipeline import Design, build_design
 from mscap.design.remesh import remesh, resample_outline
 from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import check_layout
@@ -141,8 +141,19 @@ def test_designs_remeshed_away_from_are_freed(poke_scene, monkeypatch):
     monkeypatch.setattr(remeshing, "build_design", recording_build)
     monkeypatch.setattr(optimizer, "needs_remesh", lambda *args: next(calls) in (0, 1))  # two remeshes
     design = build_design(load_scene(poke_scene))
+    open_beside = []  # per evaluation: how many other designs still hold solvers (a cascade level shares them)
+    evaluate = Design.evaluate
+
+    def recording_evaluate(self, *args, **kwargs):
+        open_beside.append(sum(1 for d in [design, *built] if d.workspace and d.workspace is not self.workspace))
+        return evaluate(self, *args, **kwargs)
+
+    monkeypatch.setattr(Design, "evaluate", recording_evaluate)
     result = optimize(design, max_iterations=3)
     assert [r.event for r in result.history].count("remesh") == 2
+    # The old design is closed before the new one's first evaluation, not after (both alive
+    # were the whole-start memory peak: biaxial 944 → 701 MB across a remesh).
+    assert open_beside and not any(open_beside)
     assert len(built) == 2 and design.workspace == {} and built[0].workspace == {}
     first, second = weakref.ref(built[0]), weakref.ref(built[1])
     built.clear()
