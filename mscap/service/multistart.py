@@ -184,6 +184,8 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
                            range(scene.multistart.k_min, scene.multistart.k_max + 1))
         write_selection(store, selection)
         store.close()
+        if selection.chosen_k is not None:
+            say(f"chosen k = {selection.chosen_k} (run {selection.chosen_run}); {selection.verdict()}")
     return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested}
 
 

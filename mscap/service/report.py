@@ -37,7 +37,9 @@ def summary_json(selection, errors: dict | None = None) -> dict:
             "by_bound": selection.by_bound,
             "chosen_k": selection.chosen_k, "chosen_run": selection.chosen_run,
             "plateau_tol": selection.plateau_tol, "plateau_reached": selection.plateau_reached,
-            "runs_total": selection.runs_total}
+            "runs_total": selection.runs_total, "finer_chosen_k": selection.finer_chosen_k,
+            "resolved": selection.resolved, "metric_error": _finite_or_none(selection.metric_error),
+            "decision_margin": _finite_or_none(selection.margin), "resolution": selection.verdict()}
 
 
 def _percent(x: float) -> str:
@@ -67,6 +69,7 @@ def table(selection, title: str = "", errors: dict | None = None) -> str:
         note = "" if selection.plateau_reached else " (largest k with a successful run: plateau not confirmed)"
         lines.append(f"* chosen k = {selection.chosen_k}, run {selection.chosen_run}, plateau_tol "
                      f"{selection.plateau_tol:g}{note}; {selection.runs_total} runs")
+        lines.append(f"  {selection.verdict()}")
         if bound:
             lines.append("  (read-back bound: soft max over the design family of the Cramér–Rao bound on the "
                          "RMS per-vertex error, mm; docs/optimize.md)")

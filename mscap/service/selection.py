@@ -121,6 +121,8 @@ class RunSummary:
     wall_s: float
     bound_mm: float = math.nan
     pruned: bool = False
+    #: The metric of the run's final layout on the finer mesh (NaN: not checked).
+    finer_metric: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -150,6 +152,58 @@ class Selection:
     plateau_reached: bool
     runs_total: int
     by_bound: bool = False
+    #: The k the same rule picks from the best runs' metrics on the finer mesh (``None``
+    #: when a best run was not checked, or the choice is by read-back bound).
+    finer_chosen_k: int | None = None
+    #: Largest relative difference of a best run's metric from its finer-mesh value.
+    metric_error: float = math.nan
+    #: Smallest relative margin by which a decision of the rule holds (how far a metric
+    #: ratio is from 1 + plateau_tol), NaN with fewer than two k.
+    margin: float = math.nan
+
+    @property
+    def resolved(self) -> bool | None:
+        """Does the finer mesh pick the same k? ``None`` if it cannot tell."""
+        if self.chosen_k is None or self.finer_chosen_k is None:
+            return None
+        return self.finer_chosen_k == self.chosen_k
+
+    def verdict(self) -> str:
+        """One line on whether the mesh resolves the choice, e.g. "not resolved: on the
+        finer mesh the rule picks k = 2; its closest decision holds by 6.6 %, the best
+        runs' metric error is up to 13.6 %"."""
+        if self.chosen_k is None:
+            return "no k chosen"
+        if self.by_bound:
+            return "resolution not checked (the choice is by read-back bound, which has no finer-mesh value)"
+        if self.resolved is None:
+            return "resolution unknown: a best run has no finer-mesh check"
+        numbers = (f"its closest decision holds by {_pct(self.margin)}, the best runs' metric error is up to "
+                   f"{_pct(self.metric_error)}")
+        if not self.resolved:
+            return f"not resolved: on the finer mesh the rule picks k = {self.finer_chosen_k}; {numbers}"
+        if math.isfinite(self.margin) and self.margin < 2 * self.metric_error:
+            return f"marginal: the finer mesh picks the same k, but {numbers}"
+        return f"resolved: the finer mesh picks the same k; {numbers}"
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f} %" if math.isfinite(x) else "-"
+
+
+def decision_margin(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) -> float:
+    """How robust :func:`choose_k`'s answer is: the smallest relative change of one metric
+    that would flip one of its decisions. The chosen k holds against every larger k' by
+    (1 + tol)·m(k)/m(k') − 1; each smaller k is left because some larger k' beats it by
+    m(k')/((1 + tol)·m(k)) − 1 (the best such k'). NaN with fewer than two valid k."""
+    pairs = sorted((k, m) for k, m in zip(ks, metrics) if m is not None and math.isfinite(m) and m > 0)
+    chosen = choose_k([k for k, _ in pairs], [m for _, m in pairs], plateau_tol)
+    if chosen is None or len(pairs) < 2:
+        return math.nan
+    c = next(i for i, (k, _) in enumerate(pairs) if k == chosen)
+    margins = [(1 + plateau_tol) * pairs[c][1] / m - 1 for _, m in pairs[c + 1:]]
+    margins += [max(m for _, m in pairs[i + 1:]) / ((1 + plateau_tol) * pairs[i][1]) - 1 for i in range(c)]
+    return float(min(margins))
 
 
 def choose_k(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) -> int | None:
@@ -202,6 +256,13 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
     chosen = choose_k(list(best_of), [score(r) for r in best_of.values()], plateau_tol)
     chosen_run = next((s.best_run for s in per_k if s.k == chosen), None)
     valid = [s.k for s in per_k if s.best_run is not None]
+    # The same rule on the finer mesh's metrics of the same runs: is the answer resolved?
+    finer = [r.finer_metric for r in best_of.values()]
+    checked = not by_bound and bool(finer) and all(math.isfinite(m) and m > 0 for m in finer)
+    finer_chosen = choose_k(list(best_of), finer, plateau_tol) if checked else None
+    errors = [abs(r.metric - r.finer_metric) / r.finer_metric for r in best_of.values()] if checked else []
     return Selection(per_k=tuple(per_k), chosen_k=chosen, chosen_run=chosen_run, plateau_tol=plateau_tol,
                      plateau_reached=chosen is not None and chosen < max(valid), runs_total=len(runs),
-                     by_bound=by_bound)
+                     by_bound=by_bound, finer_chosen_k=finer_chosen,
+                     metric_error=max(errors) if errors else math.nan,
+                     margin=decision_margin(list(best_of), [score(r) for r in best_of.values()], plateau_tol))

@@ -117,6 +117,10 @@ SELECTION_ITEMS = {
     "plateau_reached": ("attribute int", "1 if a larger k with a successful run confirms the plateau"),
     "runs_total": ("attribute int", "runs stored when the selection was written"),
     "rule": ("attribute str", "the rule in words"),
+    "finer_chosen_k": ("attribute int", "the k the rule picks from the best runs' finer-mesh metrics (-1: a best "
+                       "run unchecked, or chosen by read-back bound)"),
+    "resolution": ("attribute str", "whether the finer mesh picks the same k, with the closest decision's margin "
+                   "and the metric error (`Selection.verdict`)"),
 }
 
 
@@ -447,7 +451,8 @@ def run_summaries(store: h5py.File) -> list[RunSummary]:
         a = store["runs"][rid].attrs
         out.append(RunSummary(id=rid, k=int(a["k"]), ok=a["status"] != "failed", metric=float(a["metric_pF"]),
                               wall_s=float(a["wall_s"]), bound_mm=float(a.get("bound_mm", math.nan)),
-                              pruned=a["status"] == "pruned"))
+                              pruned=a["status"] == "pruned",
+                              finer_metric=float(a.get("finer_metric_pF", math.nan))))
     return out
 
 
@@ -483,7 +488,9 @@ def write_selection(store: h5py.File, selection: Selection) -> None:
     g.attrs.update({"chosen_k": -1 if selection.chosen_k is None else int(selection.chosen_k),
                     "chosen_run": selection.chosen_run or "", "plateau_tol": float(selection.plateau_tol),
                     "plateau_reached": int(selection.plateau_reached), "runs_total": int(selection.runs_total),
-                    "rule": SELECTION_RULE_BOUND if selection.by_bound else SELECTION_RULE})
+                    "rule": SELECTION_RULE_BOUND if selection.by_bound else SELECTION_RULE,
+                    "finer_chosen_k": -1 if selection.finer_chosen_k is None else int(selection.finer_chosen_k),
+                    "resolution": selection.verdict()})
     assert set(g) | set(g.attrs) == set(SELECTION_ITEMS)
     if "selection" in store:
         del store["selection"]

@@ -165,7 +165,8 @@ def test_an_interrupted_job_resumes_with_only_the_missing_runs(scene_file, tmp_p
     monkeypatch.setattr(multistart, "run_start", lambda s, c, *a, **k: ran.append(c.id) or real(s, c, *a, **k))
     second = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1, progress=lines.append)
     assert second["runs_done"] == 2 and sorted(ran) == ["k3_s3000_lloyd", "k3_s3001_random"]
-    assert "2 runs already stored, 2 to do" in lines[-3]
+    assert "2 runs already stored, 2 to do" in lines[-4]
+    assert lines[-1].startswith("chosen k = ") and "resol" in lines[-1]  # resolved / not resolved / unknown
     store = read_store(out)
     assert len(finished_ids(store)) == 4
     assert {rid: read_run(store, rid).wall_s for rid in before} == before  # not redone

@@ -10,8 +10,8 @@ import pytest
 
 from mscap.errors import SceneError
 from mscap.scene import load_scene
-from mscap.service.selection import (RunSummary, StartConfig, choose_k, configurations, repeated_starts, run_id,
-                                     select)
+from mscap.service.selection import (RunSummary, StartConfig, choose_k, configurations, decision_margin,
+                                     repeated_starts, run_id, select)
 
 TOL = 0.05
 
@@ -141,6 +141,42 @@ def test_select_all_failed():
 def test_select_nothing():
     sel = select([], TOL, k_values=[2, 3])
     assert sel.chosen_k is None and sel.runs_total == 0 and len(sel.per_k) == 2
+
+
+def test_decision_margin_is_the_closest_decision():
+    # 1, 2, 2.05 (tol 0.05) chooses the k of 2: k = 4 stays out by 1.05·2/2.05 − 1, k = 2
+    # is left because 2.05 beats it by 2.05/(1.05·1) − 1; the first is the closer one.
+    assert choose_k([2, 3, 4], [1.0, 2.0, 2.05], TOL) == 3
+    assert decision_margin([2, 3, 4], [1.0, 2.0, 2.05], TOL) == pytest.approx(1.05 * 2 / 2.05 - 1, rel=1e-12)
+    # A smaller k beaten narrowly: 1.0 → 1.06 is 0.95 % past 1 + tol.
+    assert decision_margin([2, 3], [1.0, 1.06], TOL) == pytest.approx(1.06 / 1.05 - 1, rel=1e-12)
+    assert math.isnan(decision_margin([2], [1.0], TOL))
+
+
+def _checked(metrics: dict, finer: dict) -> list[RunSummary]:
+    return [RunSummary(id=run_id(k, 1, "random"), k=k, ok=True, metric=m, wall_s=1.0, finer_metric=finer[k])
+            for k, m in metrics.items()]
+
+
+def test_selection_says_whether_the_finer_mesh_picks_the_same_k():
+    # make run's old quick scene: k = 3 beats k = 2 by 6.6 % on its mesh; the finer mesh
+    # reads k = 3's metric 13.6 % lower, which puts it below 1.05 × k = 2's: k = 2 there.
+    sel = select(_checked({2: 10.0, 3: 10.66}, {2: 10.0, 3: 10.66 / 1.136}), TOL)
+    assert sel.chosen_k == 3 and sel.finer_chosen_k == 2 and sel.resolved is False
+    assert sel.metric_error == pytest.approx(0.136, rel=1e-12)
+    assert sel.margin == pytest.approx(10.66 / 10.5 - 1, rel=1e-12)
+    assert sel.verdict().startswith("not resolved: on the finer mesh the rule picks k = 2; its closest "
+                                    "decision holds by 1.5 %, the best runs' metric error is up to 13.6 %")
+    # Same choice on the finer mesh, with a margin well above the error: resolved.
+    sel = select(_checked({2: 10.0, 3: 20.0, 4: 20.2}, {2: 10.1, 3: 20.1, 4: 20.1}), TOL)
+    assert sel.chosen_k == 3 and sel.finer_chosen_k == 3 and sel.resolved
+    assert sel.verdict().startswith("resolved:")
+    # Same choice, but a 1.5 % margin against 1 % errors: marginal.
+    sel = select(_checked({2: 10.0, 3: 10.66}, {2: 10.0, 3: 10.66 / 1.01}), TOL)
+    assert sel.resolved and sel.verdict().startswith("marginal:")
+    # A best run without its check: nothing to compare.
+    sel = select(_checked({2: 10.0, 3: 10.66}, {2: 10.0, 3: math.nan}), TOL)
+    assert sel.resolved is None and sel.finer_chosen_k is None and sel.verdict().startswith("resolution unknown")
 
 
 def _same_plates(a, b, ordered: bool) -> bool:
