@@ -64,8 +64,10 @@ def load_scene(path: str | Path) -> Scene:
     objects = _read_objects(root, path)
     poses = _read_poses(root, objects)
     _check_pose_geometry(path, poses, sheet)
-    if mesh.tolerance is not None:  # the ladder for the plates, zones under the balls
-        mesh = _size_mesh(mesh_table, replace(mesh, zones=sizing.poke_zones(poses)), layers, layout)
+    if mesh.tolerance is not None:  # the ladder for the plates, zones under the balls, glued bends
+        mesh = _size_mesh(mesh_table, replace(mesh, zones=sizing.poke_zones(poses),
+                                              curvature_edge_mm=sizing.curvature_edge(poses, sheet)),
+                          layers, layout)
     elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
     if "elements_through_thickness" not in data.get("elastic", {}):
         elastic = replace(elastic, elements_through_thickness=auto_slabs(layers))

@@ -38,7 +38,7 @@ from mscap.scene.settings import Layer, MeshSettings, Scene
 
 __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
            "predicted_errors", "settings_for_tolerance", "sized", "with_layout", "poke_zones",
-           "ZONE_RADII", "ZONE_EDGE"]
+           "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "bend_radius", "curvature_edge"]
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +62,12 @@ FAR_EDGE_MM = 5.0
 #: "The pose-to-pose signal").
 ZONE_RADII = 1.5
 ZONE_EDGE = 0.125
+#: On a sheet glued onto a curved object the electrostatic edge inside the plates must
+#: follow the curvature: on the joystick's stick (R = 10 mm) six plates equal by
+#: symmetry read 28.6–32.6 pF with 5 mm edges, agree to 0.3 % with 3 mm and 0.2 % with
+#: 2 mm (docs/scenes.md, "Meshes: curvature needs small electrostatic elements"). The far
+#: edge is at most CURVATURE_EDGE times the smallest radius any glued pose bends the sheet to.
+CURVATURE_EDGE = 0.25
 #: The capacitance tolerance of a scene that sets no mesh sizes.
 DEFAULT_TOLERANCE = 0.01
 
@@ -144,20 +150,65 @@ def sized(mesh: MeshSettings, layers: Sequence[Layer], layout: Layout) -> tuple[
         return mesh, float("nan")
     stack = sum(layer.thickness_mm for layer in layers)
     given = dict(mesh.overrides)
+    far = min(FAR_EDGE_MM, mesh.curvature_edge_mm or np.inf)  # a glued bend's curvature caps it
     settings, _, worst = settings_for_tolerance(mesh.tolerance, layout.outlines, layers[2].thickness_mm, stack,
-                                                given.get("edge_length_mm", FAR_EDGE_MM), given.get("order"),
+                                                given.get("edge_length_mm", far), given.get("order"),
                                                 given.get("elements_per_layer"))
     settings = replace(settings, tolerance=mesh.tolerance, overrides=mesh.overrides, **given)
     # no zone finer than the outlines: a tiny ball would otherwise ask gmsh for nanometre
     # edges along any outline it touches
     zones = tuple((x, y, radius, max(size, settings.edge_length_outline_mm)) for x, y, radius, size in mesh.zones)
-    return replace(settings, zones=zones), worst
+    return replace(settings, zones=zones, curvature_edge_mm=mesh.curvature_edge_mm), worst
 
 
 def poke_zones(poses) -> tuple[tuple[float, float, float, float], ...]:
     """The refinement zone under each poke's ball: ``(x, y, ZONE_RADII R, ZONE_EDGE R)``."""
     return tuple((float(p.center_mm[0]), float(p.center_mm[1]), ZONE_RADII * p.radius_mm, ZONE_EDGE * p.radius_mm)
                  for p in poses if isinstance(p, PokePose))
+
+
+def bend_radius(poses, sheet_outline_mm: np.ndarray, spacing_mm: float = 3.0, step_mm: float = 0.5) -> float:
+    """The smallest radius (mm) to which a glued pose bends the sheet (inf without one).
+
+    The sheet is sampled every ``spacing_mm`` (points at least ``2 step_mm`` inside its
+    outline); at each point the glued surface's normal n (from the exact Jacobian of the
+    pose's map) is differenced over ``±step_mm`` along x, y and both diagonals, and
+    |Δn| / |Δr| is the rate the normal turns along that direction, |S e| for the shape
+    operator S: at least cos 22.5° = 0.92 of the largest principal curvature, which it
+    equals along a principal direction."""
+    glued = [p for p in poses if getattr(p, "kind", None) == "glue"]
+    if not glued:
+        return float("inf")
+    outline = np.asarray(sheet_outline_mm, dtype=float)
+    lo, hi = outline.min(axis=0), outline.max(axis=0)
+    xs, ys = (np.arange(a + 2 * step_mm, b - 2 * step_mm + 1e-9, spacing_mm) for a, b in zip(lo, hi))
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    directions = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, -1.0]]) / [[1.0], [1.0], [2 ** 0.5], [2 ** 0.5]]
+    inside = np.ones(len(grid), bool)
+    for d in directions:
+        for sign in (-1, 1):
+            inside &= geometry.points_in_polygon(grid + sign * step_mm * d, outline)
+    grid = grid[inside]
+    if not len(grid):
+        return float("inf")
+    # (2 signs, 4 directions, points): every end point of every pose in one evaluation
+    ends = grid[None, None] + np.array([-1.0, 1.0])[:, None, None, None] * step_mm * directions[None, :, None, :]
+    largest = 0.0
+    for pose in glued:
+        r, j = pose.positions_and_jacobian(ends.reshape(-1, 2))
+        n = np.cross(j[:, :, 0], j[:, :, 1])
+        n = (n / np.linalg.norm(n, axis=1, keepdims=True)).reshape(2, len(directions), -1, 3)
+        r = r.reshape(2, len(directions), -1, 3)
+        turn = np.linalg.norm(n[1] - n[0], axis=-1) / np.linalg.norm(r[1] - r[0], axis=-1)
+        largest = max(largest, float(turn.max()))
+    return 1.0 / largest if largest > 0 else float("inf")
+
+
+def curvature_edge(poses, sheet_outline_mm: np.ndarray) -> float | None:
+    """The far edge the glued poses allow, :data:`CURVATURE_EDGE` · :func:`bend_radius`
+    (``None`` when no pose bends the sheet)."""
+    radius = bend_radius(poses, sheet_outline_mm)
+    return CURVATURE_EDGE * radius if np.isfinite(radius) else None
 
 
 def with_layout(scene: Scene, layout: Layout) -> Scene:

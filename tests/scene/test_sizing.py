@@ -173,3 +173,28 @@ def test_a_tiny_ball_asks_for_no_edge_finer_than_the_outlines(tmp_path):
     (zone,) = scene.mesh.zones
     assert zone[3] == scene.mesh.edge_length_outline_mm
     assert len(mesh_scene(scene).mesh2d.points) < 50_000
+
+
+@pytest.mark.parametrize("radius", [8.0, 20.0])
+def test_a_glued_bend_caps_the_far_edge_at_a_quarter_of_its_radius(tmp_path, radius):
+    # A cylinder of radius R bends the sheet to R: the normal turns by exactly 1/R per mm
+    # of arc (|Δn| / |Δr| = 2 sin(θ/2) / (2 R sin(θ/2))), up to the object's interpolation.
+    from tests.scenes import glue_scene
+
+    data = glue_scene(1)
+    data["poses"][0]["radius_mm"] = radius
+    data["mesh"] = {"tolerance": 0.01}
+    path = tmp_path / "glued.toml"
+    path.write_text(to_toml(data))
+    scene = load_scene(path)
+    assert sizing.bend_radius(scene.poses, scene.sheet_outline_mm) == pytest.approx(radius, rel=1e-3)
+    assert scene.mesh.curvature_edge_mm == pytest.approx(sizing.CURVATURE_EDGE * radius, rel=1e-3)
+    assert scene.mesh.edge_length_mm == pytest.approx(min(sizing.FAR_EDGE_MM, sizing.CURVATURE_EDGE * radius),
+                                                      rel=1e-3)
+    # a remeshed layout keeps the cap; a far edge the scene gives wins; no glued pose, no cap
+    assert sizing.with_layout(scene, scene.layout).mesh.edge_length_mm == scene.mesh.edge_length_mm
+    data["mesh"] = {"tolerance": 0.01, "edge_length_mm": 4.0}
+    path.write_text(to_toml(data))
+    assert load_scene(path).mesh.edge_length_mm == 4.0
+    flat = plate_scene(tmp_path, "square 10", {"tolerance": 0.01})
+    assert flat.mesh.curvature_edge_mm is None and flat.mesh.edge_length_mm == sizing.FAR_EDGE_MM
