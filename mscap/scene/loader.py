@@ -68,9 +68,13 @@ def load_scene(path: str | Path) -> Scene:
         mesh = _size_mesh(mesh_table, replace(mesh, zones=sizing.poke_zones(poses),
                                               curvature_edge_mm=sizing.curvature_edge(poses, sheet)),
                           layers, layout)
+    elif mesh.signal_tolerance is not None:  # hand-set sizes: the zones the signal needs all the same
+        mesh = replace(mesh, zones=tuple((x, y, r, max(h, mesh.edge_length_outline_mm))
+                                         for x, y, r, h in sizing.poke_zones(poses)))
     elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
     if "elements_through_thickness" not in data.get("elastic", {}):
         elastic = replace(elastic, elements_through_thickness=auto_slabs(layers))
+    elastic = _elastic_for_signal(mesh, elastic, poses, data.get("elastic", {}))
     if elastic.order not in (1, 2):
         raise SceneError(path, "elastic.order", f"must be 1 or 2, got {elastic.order!r}")
     if not elastic.tolerance > 0:
@@ -190,8 +194,11 @@ def _read_mesh(t: Table, layers: tuple[Layer, ...]) -> MeshSettings:
     order = t.get("order", int, 1)
     if order not in (1, 2):
         raise t.error("order", f"must be 1 or 2, got {order!r}")
+    signal = t.get("signal_tolerance", float, None, positive=True)
+    if signal is not None and not signal < 1:
+        raise t.error("signal_tolerance", f"a relative error of the pose-to-pose gains, must be < 1, got {signal!r}")
     t.finish()
-    return MeshSettings(far, near, grading, per_layer, order, tolerance)
+    return MeshSettings(far, near, grading, per_layer, order, tolerance, signal_tolerance=signal)
 
 
 def _size_mesh(t: Table, given: MeshSettings, layers: tuple[Layer, ...], layout: Layout) -> MeshSettings:
@@ -206,6 +213,20 @@ def _size_mesh(t: Table, given: MeshSettings, layers: tuple[Layer, ...], layout:
     log.info("mesh for tolerance %g: P%d, outline edge %.3g mm, %d per layer (predicted error %.2g)",
              given.tolerance, mesh.order, mesh.edge_length_outline_mm, mesh.elements_per_layer, worst)
     return mesh
+
+
+def _elastic_for_signal(mesh: MeshSettings, elastic: ElasticSettings, poses, given: dict) -> ElasticSettings:
+    """The elastic order and edge a poked scene's ``signal_tolerance`` asks for; an order or
+    edge the scene's ``[elastic]`` gives wins (an order restricts the choice to its rungs)."""
+    if mesh.signal_tolerance is None:
+        return elastic
+    chosen = sizing.elastic_for_signal(mesh.signal_tolerance, poses, given.get("order"))
+    if chosen is None:
+        return elastic
+    rung, edge = chosen
+    log.info("elastic mesh for signal tolerance %g: P%d, %.3g mm (%.3g R; measured gain error %.2g)",
+             mesh.signal_tolerance, rung.order, edge, rung.edge_over_radius, rung.gain_error)
+    return replace(elastic, order=given.get("order", rung.order), edge_length_mm=given.get("edge_length_mm", edge))
 
 
 def _read_capacitors(t: Table, sheet: np.ndarray, mesh: MeshSettings) -> tuple[Layout, float]:

@@ -108,6 +108,10 @@ class MeshSettings:
     overrides: tuple[tuple[str, float], ...] = ()
     zones: tuple[tuple[float, float, float, float], ...] = ()
     curvature_edge_mm: float | None = None
+    #: The relative error the scene accepts on its pose-to-pose gains (``[mesh]
+    #: signal_tolerance``); on a poked scene it chooses the elastic order and edge
+    #: (:func:`mscap.scene.sizing.elastic_for_signal`). None: the elastic settings as given.
+    signal_tolerance: float | None = None
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,8 @@ from mscap.scene.settings import Layer, MeshSettings, Scene
 
 __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
            "predicted_errors", "settings_for_tolerance", "sized", "with_layout", "poke_zones",
-           "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "bend_radius", "curvature_edge"]
+           "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "bend_radius", "curvature_edge", "ElasticRung",
+           "POKE_ELASTIC_LADDER", "elastic_for_signal"]
 
 log = logging.getLogger(__name__)
 
@@ -158,7 +159,8 @@ def sized(mesh: MeshSettings, layers: Sequence[Layer], layout: Layout) -> tuple[
     # no zone finer than the outlines: a tiny ball would otherwise ask gmsh for nanometre
     # edges along any outline it touches
     zones = tuple((x, y, radius, max(size, settings.edge_length_outline_mm)) for x, y, radius, size in mesh.zones)
-    return replace(settings, zones=zones, curvature_edge_mm=mesh.curvature_edge_mm), worst
+    return replace(settings, zones=zones, curvature_edge_mm=mesh.curvature_edge_mm,
+                   signal_tolerance=mesh.signal_tolerance), worst
 
 
 def poke_zones(poses) -> tuple[tuple[float, float, float, float], ...]:
@@ -209,6 +211,50 @@ def curvature_edge(poses, sheet_outline_mm: np.ndarray) -> float | None:
     (``None`` when no pose bends the sheet)."""
     radius = bend_radius(poses, sheet_outline_mm)
     return CURVATURE_EDGE * radius if np.isfinite(radius) else None
+
+
+@dataclass(frozen=True)
+class ElasticRung:
+    """Elastic settings for the signal of a poked scene: element ``order``, edge length as a
+    multiple of the ball radius R, and the measured ``gain_error``."""
+
+    order: int
+    edge_over_radius: float
+    gain_error: float
+
+
+#: The pose-to-pose signal of a poke is elastic: how far the ball stretches the dielectric
+#: over each plate. On jobs/poking.toml (R = 10 mm, 13 mm deep, the electrostatic mesh at
+#: 1 % with its zones under the balls, one slab through the stack) the largest relative
+#: error of any gain C_j(poke_i) − C_j(rest) against a P2 Richardson reference (P2 at 5,
+#: 3.54, 2.5 mm, observed order 1.2; docs/electrostatics.md, "The pose-to-pose signal"),
+#: cheapest first. P1 does not get below 6 % (0.0625 R: 6.0 %; one slab per layer at
+#: 0.25 R: 7.3 %): its tets lock in the thin, nearly incompressible stack.
+POKE_ELASTIC_LADDER: tuple[ElasticRung, ...] = (
+    ElasticRung(1, 0.5, 0.20),
+    ElasticRung(1, 0.25, 0.107),
+    ElasticRung(1, 0.125, 0.072),
+    ElasticRung(2, 0.5, 0.026),
+    ElasticRung(2, 0.354, 0.017),
+    ElasticRung(2, 0.25, 0.012),
+)
+
+
+def elastic_for_signal(tolerance: float, poses, order: int | None = None) -> tuple[ElasticRung, float] | None:
+    """The cheapest :data:`POKE_ELASTIC_LADDER` rung (of ``order``, when the scene fixes it)
+    whose gain error is within ``tolerance``, and its edge length (mm) for the smallest
+    ball; ``None`` without a poke. When none reaches the tolerance, the most accurate,
+    with a warning."""
+    radii = [p.radius_mm for p in poses if isinstance(p, PokePose)]
+    if not radii:
+        return None
+    ladder = [rung for rung in POKE_ELASTIC_LADDER if order in (None, rung.order)] or list(POKE_ELASTIC_LADDER)
+    rung = next((r for r in ladder if r.gain_error <= tolerance), None)
+    if rung is None:
+        rung = ladder[-1]
+        log.warning("signal tolerance %.3g: the most accurate elastic setting for pokes, P%d at %.3g R, was "
+                    "measured at %.3g; using it", tolerance, rung.order, rung.edge_over_radius, rung.gain_error)
+    return rung, rung.edge_over_radius * min(radii)
 
 
 def with_layout(scene: Scene, layout: Layout) -> Scene:

@@ -12,6 +12,7 @@ from mscap.fem import electrostatic as es
 from mscap.geometry.polygons import disk, square
 from mscap.scene import sizing
 from mscap.mesh.layered import mesh_scene
+from mscap.errors import SceneError
 from mscap.scene import load_scene
 from tests.conftest import to_toml
 from tests.scenes import scene_dict
@@ -198,3 +199,40 @@ def test_a_glued_bend_caps_the_far_edge_at_a_quarter_of_its_radius(tmp_path, rad
     assert load_scene(path).mesh.edge_length_mm == 4.0
     flat = plate_scene(tmp_path, "square 10", {"tolerance": 0.01})
     assert flat.mesh.curvature_edge_mm is None and flat.mesh.edge_length_mm == sizing.FAR_EDGE_MM
+
+
+def test_a_signal_tolerance_chooses_the_elastic_order_and_edge_of_a_poked_scene(tmp_path):
+    from tests.scenes import poke_scene_dict
+
+    def load(mesh, elastic=None):
+        data = poke_scene_dict()
+        data["mesh"] = mesh
+        if elastic is not None:
+            data["elastic"] = elastic
+        path = tmp_path / "poke.toml"
+        path.write_text(to_toml(data))
+        return load_scene(path)
+
+    radius = 5.0  # the test scene's ball
+    hand = {"edge_length_mm": 3.0, "edge_length_outline_mm": 0.5, "grading_distance_mm": 2.0}
+    plain = load(hand)
+    assert plain.mesh.zones == () and (plain.elastic.order, plain.elastic.edge_length_mm) == (1, 5.0)
+    # 2 %: the cheapest rung within it is P2 at 0.354 R (measured 1.7 % on jobs/poking.toml)
+    scene = load({**hand, "signal_tolerance": 0.02})
+    rung = next(r for r in sizing.POKE_ELASTIC_LADDER if r.gain_error <= 0.02)
+    assert (rung.order, rung.edge_over_radius) == (2, 0.354)
+    assert scene.elastic.order == 2 and scene.elastic.edge_length_mm == pytest.approx(0.354 * radius)
+    # the zones under the ball come with it, also on a hand-set mesh, never below the outline edge
+    assert scene.mesh.zones == ((15.0, 15.0, sizing.ZONE_RADII * radius, max(sizing.ZONE_EDGE * radius, 0.5)),)
+    assert scene.mesh.signal_tolerance == 0.02 and scene.mesh.edge_length_mm == 3.0
+    # a loose tolerance keeps P1; an order the scene gives restricts the ladder, an edge wins
+    assert (load({**hand, "signal_tolerance": 0.25}).elastic.order,) == (1,)
+    p1 = load({**hand, "signal_tolerance": 0.08}, {"order": 1})
+    assert p1.elastic.order == 1 and p1.elastic.edge_length_mm == pytest.approx(0.125 * radius)
+    fixed = load({**hand, "signal_tolerance": 0.02}, {"edge_length_mm": 4.0})
+    assert fixed.elastic.order == 2 and fixed.elastic.edge_length_mm == 4.0
+    # with a capacitance tolerance as well, both hold
+    both = load({"tolerance": 0.01, "signal_tolerance": 0.02})
+    assert both.mesh.tolerance == 0.01 and both.mesh.signal_tolerance == 0.02 and both.elastic.order == 2
+    with pytest.raises(SceneError, match="signal_tolerance"):
+        load({**hand, "signal_tolerance": 1.5})
