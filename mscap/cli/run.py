@@ -62,4 +62,6 @@ def run(args) -> int:
     if rank == 0 and not args.quiet:
         print(f"{args.output}: {summary['runs_done']} runs this time ({summary['runs_failed']} failed)"
               + ("; stopped early" if summary["stopped"] else ""))
+        if summary.get("choice"):
+            print(summary["choice"])
     return 0

@@ -184,9 +184,9 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
                            range(scene.multistart.k_min, scene.multistart.k_max + 1))
         write_selection(store, selection)
         store.close()
-        if selection.chosen_k is not None:
-            say(f"chosen k = {selection.chosen_k} (run {selection.chosen_run}); {selection.verdict()}")
-    return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested}
+    choice = None if selection.chosen_k is None else \
+        f"chosen k = {selection.chosen_k} (run {selection.chosen_run}); {selection.verdict()}"
+    return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested, "choice": choice}
 
 
 def stored_rungs(store, rule: PruneRule, kind: str) -> Rungs:
