@@ -252,7 +252,11 @@ def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
         return mesh
     h = settings.edge_length_mm
     outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
+    # The zones under the balls refine a P1 elastic mesh only: P2 reads jobs/poking.toml's
+    # gains as well without them (1.8 % against 1.7 % at 3.54 mm) at a quarter of the time.
+    zones = scene.mesh.zones if settings.order == 1 else ()
     mesh2d = triangulate(scene.sheet_outline_mm, elastic_layout(scene.layout, scene.sheet_outline_mm, outline),
-                         replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0))
+                         replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0,
+                                 zones=zones))
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
                    slabs=settings.elements_through_thickness or None)

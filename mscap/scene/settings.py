@@ -93,7 +93,7 @@ class MeshSettings:
     ``fringe_slope`` (0: one ramp over ``grading_distance_mm``). ``zones``: ``(x, y,
     radius, size)`` discs (mm) within which no edge is longer than ``size``, growing at 0.5
     mm per mm beyond (under the balls of poke poses, :func:`mscap.scene.sizing.poke_zones`);
-    both the electrostatic and the elastic mesh follow them. ``curvature_edge_mm``: the
+    the electrostatic mesh and a P1 elastic mesh follow them. ``curvature_edge_mm``: the
     largest far edge the glued poses' bends allow (:func:`mscap.scene.sizing.curvature_edge`;
     ``None`` without a glued pose), which a tolerance's sizes keep to."""
 
