@@ -391,18 +391,18 @@ def run_scene(scene_path: str, factors, variants: bool, max_seconds: float, leve
     rows, slow = {}, {}
     stored = load_levels(levels_path) if levels_path is not None else {}
     for lv in levels:
+        if reuse and _key(name, lv) in stored:  # a stored level counts however long it took
+            rows[lv] = stored[_key(name, lv)]
+            print(f"  {lv.label():<16} stored: {rows[lv]['wall_s']:7.2f} s", flush=True)
+            continue
         if lv.factor < slow.get(lv.orders, 0.0):
             print(f"  {lv.label():<16} skipped: factor {slow[lv.orders]:.3g} took over {max_seconds:g} s", flush=True)
             continue
-        if reuse and _key(name, lv) in stored:
-            rows[lv] = stored[_key(name, lv)]
-            print(f"  {lv.label():<16} stored: {rows[lv]['wall_s']:7.2f} s", flush=True)
-        else:
-            rows[lv] = run_level(scene_path, lv, timeout_s=2 * max_seconds)
-            if rows[lv] is not None and levels_path is not None:
-                stored = load_levels(levels_path)
-                stored[_key(name, lv)] = rows[lv]
-                levels_path.write_text(json.dumps(stored, indent=0))
+        rows[lv] = run_level(scene_path, lv, timeout_s=2 * max_seconds)
+        if rows[lv] is not None and levels_path is not None:
+            stored = load_levels(levels_path)
+            stored[_key(name, lv)] = rows[lv]
+            levels_path.write_text(json.dumps(stored, indent=0))
         if rows[lv] is None or rows[lv]["wall_s"] > max_seconds:
             slow[lv.orders] = lv.factor
     reference, how = reference_of(levels, rows, default)
