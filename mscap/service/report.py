@@ -39,7 +39,9 @@ def summary_json(selection, errors: dict | None = None) -> dict:
             "plateau_tol": selection.plateau_tol, "plateau_reached": selection.plateau_reached,
             "runs_total": selection.runs_total, "finer_chosen_k": selection.finer_chosen_k,
             "resolved": selection.resolved, "metric_error": _finite_or_none(selection.metric_error),
-            "decision_margin": _finite_or_none(selection.margin), "resolution": selection.verdict()}
+            "weakest_decision": None if selection.weakest is None else list(selection.weakest),
+            "decision_margin": _finite_or_none(selection.margin),
+            "decision_error": _finite_or_none(selection.margin_error), "resolution": selection.verdict()}
 
 
 def _percent(x: float) -> str:

@@ -157,9 +157,12 @@ class Selection:
     finer_chosen_k: int | None = None
     #: Largest relative difference of a best run's metric from its finer-mesh value.
     metric_error: float = math.nan
-    #: Smallest relative margin by which a decision of the rule holds (how far a metric
-    #: ratio is from 1 + plateau_tol), NaN with fewer than two k.
+    #: The rule's weakest decision (:func:`decisions`): the two k it compares, the relative
+    #: margin by which it holds, and the sum of those two best runs' metric errors (NaN
+    #: unchecked); ``None``/NaN with fewer than two k.
+    weakest: tuple[int, int] | None = None
     margin: float = math.nan
+    margin_error: float = math.nan
 
     @property
     def resolved(self) -> bool | None:
@@ -170,20 +173,22 @@ class Selection:
 
     def verdict(self) -> str:
         """One line on whether the mesh resolves the choice, e.g. "not resolved: on the
-        finer mesh the rule picks k = 2; its closest decision holds by 1.5 %, the best
-        runs' metric error is up to 13.6 %" (k = 3 beat k = 2 by 6.6 %, 1.5 % past the
-        5 % plateau_tol)."""
+        finer mesh the rule picks k = 2; its weakest decision, k = 2 against k = 3, holds by
+        1.5 %, the two runs' metric errors add up to 13.6 %" (k = 3 beat k = 2 by 6.6 %, 1.5 %
+        past the 5 % plateau_tol). "marginal": the same k on the finer mesh, but a decision
+        holds by less than its two runs' errors add up to."""
         if self.chosen_k is None:
             return "no k chosen"
         if self.by_bound:
             return "resolution not checked (the choice is by read-back bound, which has no finer-mesh value)"
         if self.resolved is None:
             return "resolution unknown: a best run has no finer-mesh check"
-        numbers = (f"its closest decision holds by {_pct(self.margin)}, the best runs' metric error is up to "
-                   f"{_pct(self.metric_error)}")
+        numbers = (f"its weakest decision, k = {self.weakest[0]} against k = {self.weakest[1]}, holds by "
+                   f"{_pct(self.margin)}, the two runs' metric errors add up to {_pct(self.margin_error)}"
+                   if self.weakest else "only one k")
         if not self.resolved:
             return f"not resolved: on the finer mesh the rule picks k = {self.finer_chosen_k}; {numbers}"
-        if math.isfinite(self.margin) and self.margin < 2 * self.metric_error:
+        if math.isfinite(self.margin) and self.margin < self.margin_error:
             return f"marginal: the finer mesh picks the same k, but {numbers}"
         return f"resolved: the finer mesh picks the same k; {numbers}"
 
@@ -192,19 +197,28 @@ def _pct(x: float) -> str:
     return f"{100 * x:.1f} %" if math.isfinite(x) else "-"
 
 
-def decision_margin(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) -> float:
-    """How robust :func:`choose_k`'s answer is: the smallest relative change of one metric
-    that would flip one of its decisions. The chosen k holds against every larger k' by
-    (1 + tol)·m(k)/m(k') − 1; each smaller k is left because some larger k' beats it by
-    m(k')/((1 + tol)·m(k)) − 1 (the best such k'). NaN with fewer than two valid k."""
+def decisions(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) -> list[tuple[int, int, float]]:
+    """The comparisons behind :func:`choose_k`'s answer, each as ``(k, k', margin)``: the
+    relative change of the ratio of the two metrics that would flip it. The chosen k holds
+    against every larger k' by (1 + tol)·m(k)/m(k') − 1; each smaller k is left because a
+    larger k' (the best one) beats it by m(k')/((1 + tol)·m(k)) − 1. Empty with fewer than
+    two valid k."""
     pairs = sorted((k, m) for k, m in zip(ks, metrics) if m is not None and math.isfinite(m) and m > 0)
     chosen = choose_k([k for k, _ in pairs], [m for _, m in pairs], plateau_tol)
     if chosen is None or len(pairs) < 2:
-        return math.nan
+        return []
     c = next(i for i, (k, _) in enumerate(pairs) if k == chosen)
-    margins = [(1 + plateau_tol) * pairs[c][1] / m - 1 for _, m in pairs[c + 1:]]
-    margins += [max(m for _, m in pairs[i + 1:]) / ((1 + plateau_tol) * pairs[i][1]) - 1 for i in range(c)]
-    return float(min(margins))
+    out = [(chosen, k, (1 + plateau_tol) * pairs[c][1] / m - 1) for k, m in pairs[c + 1:]]
+    for i in range(c):
+        best = max(pairs[i + 1:], key=lambda pair: pair[1])
+        out.append((pairs[i][0], best[0], best[1] / ((1 + plateau_tol) * pairs[i][1]) - 1))
+    return out
+
+
+def decision_margin(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) -> float:
+    """The smallest margin of :func:`decisions` (NaN with fewer than two valid k)."""
+    margins = [margin for _, _, margin in decisions(ks, metrics, plateau_tol)]
+    return float(min(margins)) if margins else math.nan
 
 
 def choose_k(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) -> int | None:
@@ -261,9 +275,16 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
     finer = [r.finer_metric for r in best_of.values()]
     checked = not by_bound and bool(finer) and all(math.isfinite(m) and m > 0 for m in finer)
     finer_chosen = choose_k(list(best_of), finer, plateau_tol) if checked else None
-    errors = [abs(r.metric - r.finer_metric) / r.finer_metric for r in best_of.values()] if checked else []
+    error_of = {k: abs(r.metric - r.finer_metric) / r.finer_metric if checked else math.nan
+                for k, r in best_of.items()}
+    # The weakest decision: the smallest margin against the two runs' errors (or alone, unchecked).
+    compared = decisions(list(best_of), [score(r) for r in best_of.values()], plateau_tol)
+    weakest = min(compared, key=lambda d: d[2] / max(error_of[d[0]] + error_of[d[1]], 1e-300) if checked else d[2],
+                  default=None)
     return Selection(per_k=tuple(per_k), chosen_k=chosen, chosen_run=chosen_run, plateau_tol=plateau_tol,
                      plateau_reached=chosen is not None and chosen < max(valid), runs_total=len(runs),
                      by_bound=by_bound, finer_chosen_k=finer_chosen,
-                     metric_error=max(errors) if errors else math.nan,
-                     margin=decision_margin(list(best_of), [score(r) for r in best_of.values()], plateau_tol))
+                     metric_error=max(error_of.values()) if checked else math.nan,
+                     weakest=None if weakest is None else weakest[:2],
+                     margin=math.nan if weakest is None else weakest[2],
+                     margin_error=math.nan if weakest is None else error_of[weakest[0]] + error_of[weakest[1]])

@@ -164,16 +164,27 @@ def test_selection_says_whether_the_finer_mesh_picks_the_same_k():
     sel = select(_checked({2: 10.0, 3: 10.66}, {2: 10.0, 3: 10.66 / 1.136}), TOL)
     assert sel.chosen_k == 3 and sel.finer_chosen_k == 2 and sel.resolved is False
     assert sel.metric_error == pytest.approx(0.136, rel=1e-12)
-    assert sel.margin == pytest.approx(10.66 / 10.5 - 1, rel=1e-12)
-    assert sel.verdict().startswith("not resolved: on the finer mesh the rule picks k = 2; its closest "
-                                    "decision holds by 1.5 %, the best runs' metric error is up to 13.6 %")
-    # Same choice on the finer mesh, with a margin well above the error: resolved.
+    assert sel.weakest == (2, 3) and sel.margin == pytest.approx(10.66 / 10.5 - 1, rel=1e-12)
+    assert sel.margin_error == pytest.approx(0.136, rel=1e-12)
+    assert sel.verdict() == ("not resolved: on the finer mesh the rule picks k = 2; its weakest decision, k = 2 "
+                             "against k = 3, holds by 1.5 %, the two runs' metric errors add up to 13.6 %")
+    # Same choice on the finer mesh, with margins well above the errors: resolved.
     sel = select(_checked({2: 10.0, 3: 20.0, 4: 20.2}, {2: 10.1, 3: 20.1, 4: 20.1}), TOL)
     assert sel.chosen_k == 3 and sel.finer_chosen_k == 3 and sel.resolved
     assert sel.verdict().startswith("resolved:")
-    # Same choice, but a 1.5 % margin against 1 % errors: marginal.
-    sel = select(_checked({2: 10.0, 3: 10.66}, {2: 10.0, 3: 10.66 / 1.01}), TOL)
-    assert sel.resolved and sel.verdict().startswith("marginal:")
+    # Same choice, but a 1.5 % margin against 1 + 1 % errors: marginal.
+    sel = select(_checked({2: 10.0, 3: 10.66}, {2: 10.0 / 1.01, 3: 10.66 / 1.01}), TOL)
+    assert sel.resolved and sel.margin_error == pytest.approx(0.02, rel=1e-9)
+    assert sel.verdict().startswith("marginal:")
+    # The weakest decision is weighed by its own runs' errors: the poking_cross paper run's
+    # k = 2 read 7.4 % high but is left by a wide margin; k = 5 against k = 6 decides.
+    metrics = {2: 8.30335, 3: 10.9757, 4: 13.9965, 5: 16.064, 6: 15.8352}
+    finer = {2: 7.73, 3: 10.47, 4: 13.73, 5: 15.72, 6: 15.44}
+    sel = select(_checked(metrics, finer), TOL)
+    assert sel.chosen_k == 5 == sel.finer_chosen_k and sel.weakest == (5, 6)
+    assert sel.margin == pytest.approx(1.05 * 16.064 / 15.8352 - 1, rel=1e-12)
+    assert sel.margin_error == pytest.approx(16.064 / 15.72 + 15.8352 / 15.44 - 2, rel=1e-12)
+    assert sel.verdict().startswith("resolved:")  # 6.5 % against 2.2 + 2.6 %
     # A best run without its check: nothing to compare.
     sel = select(_checked({2: 10.0, 3: 10.66}, {2: 10.0, 3: math.nan}), TOL)
     assert sel.resolved is None and sel.finer_chosen_k is None and sel.verdict().startswith("resolution unknown")
