@@ -617,7 +617,7 @@ def _reference(rows, problem):
 def report(rows, checks, out):
     """Errors against the reference, the CSV, the tables and the equal-error ratios."""
     sys.path.insert(0, str(ROOT))
-    from benchmarks._common import write_csv
+    from benchmarks._common import table_head, write_csv
 
     print("\n### References (NGSolve, quarter of a lone plate, graded hexahedra)\n")
     references = {problem: _reference(rows, problem) for problem in dict.fromkeys(r["problem"] for r in rows)}
@@ -679,9 +679,16 @@ def _time_to(rows, target, key):
     return None
 
 
+def _runs(rows, problem, families):
+    """The rows of ``problem`` run by one of ``families``."""
+    return [r for r in rows if r["problem"] == problem and r["family"] in families]
+
+
 def equal_error(rows, problems):
     """Per problem and error target: each group's fastest run at or under it, and the
     time interpolated along each group's Pareto front; both as ratios to mscap's."""
+    from benchmarks._common import table_head  # report() put the project on sys.path
+
     print("\n### Equal error: the fastest run at or under each error, total s (= mesh + electrostatics; "
           "in brackets electrostatics alone), and its time / mscap's\n")
     for line in table_head("| problem | error ≤ | " + " | ".join(GROUPS) + " |"):
@@ -690,7 +697,7 @@ def equal_error(rows, problems):
         for target in TARGETS:
             best = {}
             for group, families in GROUPS.items():
-                ok = [r for r in rows if r["problem"] == problem and r["family"] in families and r["error"] <= target]
+                ok = [r for r in _runs(rows, problem, families) if r["error"] <= target]
                 best[group] = min(ok, key=lambda r: r["total_s"]) if ok else None
             m = best["mscap"]
             cells = []
@@ -712,7 +719,7 @@ def equal_error(rows, problems):
         for target in TARGETS:
             cells, m = [], None
             for group, families in GROUPS.items():
-                sel = [r for r in rows if r["problem"] == problem and r["family"] in families]
+                sel = _runs(rows, problem, families)
                 t, e = _time_to(sel, target, "total_s"), _time_to(sel, target, "electrostatics_s")
                 if group == "mscap":
                     m = (t, e)
@@ -724,11 +731,6 @@ def equal_error(rows, problems):
                     text += f" → **{t / m[0]:.2f}×** ({e / m[1]:.2f}×)"
                 cells.append(text)
             print(f"| {problem} | {100 * target:g} % | " + " | ".join(cells) + " |")
-
-
-def table_head(head):
-    """A Markdown table's header line and its rule (as benchmarks._common.table_head)."""
-    return [head, "|" + "---|" * (head.count("|") - 1)]
 
 
 if __name__ == "__main__":
