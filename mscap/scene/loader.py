@@ -69,8 +69,7 @@ def load_scene(path: str | Path) -> Scene:
                                               curvature_edge_mm=sizing.curvature_edge(poses, sheet)),
                           layers, layout)
     elif mesh.signal_tolerance is not None:  # hand-set sizes: the zones the signal needs all the same
-        mesh = replace(mesh, zones=tuple((x, y, r, max(h, mesh.edge_length_outline_mm))
-                                         for x, y, r, h in sizing.poke_zones(poses)))
+        mesh = replace(mesh, zones=sizing.no_finer_than(sizing.poke_zones(poses), mesh.edge_length_outline_mm))
     elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
     if "elements_through_thickness" not in data.get("elastic", {}):
         elastic = replace(elastic, elements_through_thickness=auto_slabs(layers))

@@ -37,7 +37,7 @@ from mscap.scene.poses import PokePose
 from mscap.scene.settings import Layer, MeshSettings, Scene
 
 __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
-           "predicted_errors", "settings_for_tolerance", "sized", "with_layout", "poke_zones",
+           "predicted_errors", "settings_for_tolerance", "sized", "with_layout", "poke_zones", "no_finer_than",
            "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "bend_radius", "curvature_edge", "ElasticRung",
            "POKE_ELASTIC_LADDER", "elastic_for_signal"]
 
@@ -156,11 +156,14 @@ def sized(mesh: MeshSettings, layers: Sequence[Layer], layout: Layout) -> tuple[
                                                 given.get("edge_length_mm", far), given.get("order"),
                                                 given.get("elements_per_layer"))
     settings = replace(settings, tolerance=mesh.tolerance, overrides=mesh.overrides, **given)
-    # no zone finer than the outlines: a tiny ball would otherwise ask gmsh for nanometre
-    # edges along any outline it touches
-    zones = tuple((x, y, radius, max(size, settings.edge_length_outline_mm)) for x, y, radius, size in mesh.zones)
-    return replace(settings, zones=zones, curvature_edge_mm=mesh.curvature_edge_mm,
-                   signal_tolerance=mesh.signal_tolerance), worst
+    return replace(settings, zones=no_finer_than(mesh.zones, settings.edge_length_outline_mm),
+                   curvature_edge_mm=mesh.curvature_edge_mm, signal_tolerance=mesh.signal_tolerance), worst
+
+
+def no_finer_than(zones, edge_mm: float) -> tuple[tuple[float, float, float, float], ...]:
+    """``zones`` with no size below ``edge_mm`` (the outline edge): a tiny ball would
+    otherwise ask gmsh for nanometre edges along any outline it touches."""
+    return tuple((x, y, radius, max(size, edge_mm)) for x, y, radius, size in zones)
 
 
 def poke_zones(poses) -> tuple[tuple[float, float, float, float], ...]:
