@@ -119,8 +119,8 @@ SELECTION_ITEMS = {
     "rule": ("attribute str", "the rule in words"),
     "finer_chosen_k": ("attribute int", "the k the rule picks from the best runs' finer-mesh metrics (-1: a best "
                        "run unchecked, or chosen by read-back bound)"),
-    "resolution": ("attribute str", "whether the finer mesh picks the same k, with the closest decision's margin "
-                   "and the metric error (`Selection.verdict`)"),
+    "resolution": ("attribute str", "whether the finer mesh picks the same k, with the weakest decision's margin "
+                   "and its two runs' metric errors (`Selection.verdict`)"),
 }
 
 
