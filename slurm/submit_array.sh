@@ -15,7 +15,8 @@
 #   --seed-chunk S      seeds per task (--split seeds)       [SEED_CHUNK]  (5)
 #   --seeds-total N     starts per k   (--split seeds)       [SEEDS_TOTAL] (scene's starts_per_k, else 25)
 #   --max-parallel M    at most M array tasks at once        [MAX_PARALLEL]
-#   -- ARGS             further sbatch arguments for the array job (--ntasks, --time, --partition, ...)
+#   -- ARGS             further sbatch arguments for the array job (--ntasks, --time, --partition, ...);
+#                       an --export=LIST here adds LIST's variables (LAUNCHER, SRUN_ARGS, MSCAP_ARGS, ...)
 # MSCAP_REPO (default: this script's repository) and MSCAP_VENV are passed to the jobs.
 # Prints the array and merge job ids.
 set -euo pipefail
@@ -34,7 +35,7 @@ MAX_PARALLEL="${MAX_PARALLEL:-}"
 SCENE="${SCENE:-}"
 sbatch_extra=()
 
-usage() { sed -n '2,20p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,/^set -euo/p' "${BASH_SOURCE[0]}" | sed '$d; s/^# \{0,1\}//'; }
 die() { echo "submit_array: $*" >&2; exit 2; }
 
 while (( $# )); do
@@ -80,8 +81,29 @@ for v in "$K_MIN" "$K_MAX" "$SEED_CHUNK" "$SEEDS_TOTAL"; do
 done
 (( K_MIN <= K_MAX )) || die "k_min $K_MIN exceeds k_max $K_MAX"
 
+# A user's --export after `--` (e.g. --export=ALL,SRUN_ARGS=--mpi=pmix) would replace the one
+# that carries the scene and the output directory: its variables join ours instead.
+user_exports=""
+sbatch_args=()
+for a in ${sbatch_extra[@]+"${sbatch_extra[@]}"}; do
+    case "$a" in
+        --export=*)
+            IFS=, read -r -a entries <<< "${a#--export=}"
+            for e in "${entries[@]}"; do
+                case "$e" in
+                    ALL|"") ;;
+                    NONE|NIL) die "--export=$e would drop the settings the array tasks need; name the variables to add" ;;
+                    *) user_exports+=",$e" ;;
+                esac
+            done
+            ;;
+        --export) die "give sbatch's --export as --export=LIST after --" ;;
+        *) sbatch_args+=("$a") ;;
+    esac
+done
+
 parts=()
-export_vars="ALL,SCENE=$SCENE,OUTDIR=$OUTDIR,SPLIT=$SPLIT,MSCAP_REPO=$MSCAP_REPO,MSCAP_VENV=$MSCAP_VENV"
+export_vars="ALL$user_exports,SCENE=$SCENE,OUTDIR=$OUTDIR,SPLIT=$SPLIT,MSCAP_REPO=$MSCAP_REPO,MSCAP_VENV=$MSCAP_VENV"
 case "$SPLIT" in
     k)
         array="${K_MIN}-${K_MAX}"
@@ -114,7 +136,7 @@ job_id() {
 }
 
 array_out="$(sbatch --parsable --array="$array" --export="$export_vars" \
-    ${sbatch_extra[@]+"${sbatch_extra[@]}"} "$here/mscap_array.sbatch")"
+    ${sbatch_args[@]+"${sbatch_args[@]}"} "$here/mscap_array.sbatch")"
 array_id="$(job_id "$array_out")"
 
 # The merge job runs under /bin/sh: POSIX only, every path single-quoted.

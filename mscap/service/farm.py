@@ -7,8 +7,8 @@ result to a callback; a worker says "ready", then loops: receive a task, send ba
 result, until told to stop. While on a task a worker may *ask* the master a question
 (a pruning checkpoint) and wait for its answer. Tasks, questions, answers and results are
 pickled Python objects. SIGTERM (what
-SLURM sends at the time limit) and Ctrl-C set :class:`Stop`, which makes the master hand
-out nothing more.
+SLURM sends at the time limit), SIGUSR1 (passed on by ``mpirun``) and Ctrl-C set
+:class:`Stop`, which makes the master hand out nothing more; workers ignore both signals.
 
 :func:`run` is the one skeleton both services use: workers serve, the master plans its
 tasks and records results, and a stop leaves what was recorded and aborts busy workers.
@@ -22,24 +22,39 @@ from typing import Any, Callable, Iterable, TypeVar
 
 Result = TypeVar("Result")
 
-__all__ = ["TAGS", "Stop", "farm", "serve", "ask_master", "release", "run"]
+__all__ = ["TAGS", "STOP_SIGNALS", "Stop", "ignore_stop_signals", "farm", "serve", "ask_master", "release", "run"]
 
 #: Message tags between master and workers, in one place.
 TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4, "ask": 5, "answer": 6}
 
 
+#: The signals that ask the master to stop: SIGTERM (SLURM's time limit, ``scancel``) and
+#: SIGUSR1 (what OpenMPI's ``mpirun`` passes on to every rank without killing the job;
+#: the SLURM scripts send it to an ``mpirun`` inside the allocation, slurm/README.md).
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGUSR1)
+
+
 class Stop:
-    """Turns SIGTERM into a flag the master polls (SLURM's time limit)."""
+    """Turns :data:`STOP_SIGNALS` into a flag the master polls."""
 
     def __init__(self):
         self.requested = False
-        self._previous = signal.signal(signal.SIGTERM, self._handle)
+        self._previous = {s: signal.signal(s, self._handle) for s in STOP_SIGNALS}
 
     def _handle(self, signum, frame):
         self.requested = True
 
     def restore(self):
-        signal.signal(signal.SIGTERM, self._previous)
+        for s, previous in self._previous.items():
+            signal.signal(s, previous)
+
+
+def ignore_stop_signals() -> None:
+    """Worker side: leave :data:`STOP_SIGNALS` to the master. SLURM signals every task
+    of a step and ``mpirun`` every rank; a worker that died of it would take its finished
+    but unsent result with it, while the master stops cleanly and aborts busy workers."""
+    for s in STOP_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
 
 
 def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop,
@@ -119,6 +134,7 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
     master closes its files as usual), then rank 0 says ``stopped_message`` and aborts the
     workers still busy (a busy start cannot be interrupted otherwise)."""
     if comm.Get_rank() != 0:
+        ignore_stop_signals()
         serve(comm, make_work(ask_master(comm)))
         return None
     stop, farming = Stop(), False

@@ -299,3 +299,33 @@ def test_a_killed_job_leaves_a_readable_file_and_the_rerun_completes_it(scene_fi
     store = read_store(out)
     assert len(finished_ids(store)) == 4
     assert {rid: read_run(store, rid).wall_s for rid in before} == before
+
+
+@needs_mpirun
+def test_usr1_to_mpirun_stops_the_master_cleanly(scene_file, tmp_path):
+    """The SLURM scripts stop an mpirun-launched job with SIGUSR1 (mpirun passes it on to every
+    rank; a TERM would make mpirun kill them): the master stores what finished, says
+    "stopped", aborts the busy workers and the job exits 0; workers ignore the signal."""
+    import signal
+    import time
+
+    out = tmp_path / "stopped.h5"
+    command = ["mpirun", "-n", "3", "--oversubscribe", MSCAP, "run", str(scene_file), "-o", str(out),
+               "--max-iterations", "2"]
+    job = subprocess.Popen(command, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           start_new_session=True)
+    for line in job.stderr:
+        if line.startswith("[1/"):
+            break
+    job.send_signal(signal.SIGUSR1)
+    stdout, stderr = job.communicate(timeout=60)
+    assert job.returncode == 0, stderr
+    assert "exited on signal" not in stderr               # no rank died of the signal
+    assert "stopped: the finished runs are stored" in stdout + stderr
+    deadline = time.monotonic() + 30
+    while session_members(job.pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not session_members(job.pid), "ranks outlived the stopped job"
+    store = read_store(out)
+    assert 1 <= len(finished_ids(store)) < 4
+    store.close()

@@ -1,9 +1,12 @@
 """The SLURM scripts in slurm/: syntax, and the commands they issue.
 
-Each script runs with stand-in `srun`, `sbatch`, `mpirun` and `mscap` executables first on
-PATH: tiny shell scripts that append their name and argv to a log (fields separated by \\x1f,
-calls by \\x1e); the stand-in sbatch prints a job id (12345, 12346, ... in order). No SLURM
-or MPI is needed.
+Each script runs with stand-in `srun`, `sbatch`, `scancel`, `mpirun` and `mscap` executables
+on a PATH that holds nothing else of SLURM's or MPI's (the system's tools are reached through
+a directory of links that leaves those out), so the tests mean the same on a machine with
+SLURM installed (a cluster's login node) as on one without. The stand-ins are tiny shell
+scripts that append their name and argv to a log (fields separated by \\x1f, calls by
+\\x1e); the stand-in sbatch prints a job id (12345, 12346, ... in order). The real SLURM
+is exercised by slurm/selftest.sh (tests/service/test_slurm_real.py).
 """
 
 from __future__ import annotations
@@ -36,12 +39,43 @@ else
 fi
 """
 
-# A launcher that stays up until told to stop; records a SIGTERM it receives.
-SLOW = LOGGER + """trap 'echo TERM >> "$STANDIN_LOG.signals"; exit 143' TERM
+# A launcher that stays up until told to stop, like mscap: records the stop signal it receives
+# and exits 0. Its pid is where the stand-in scancel finds it.
+SLOW = LOGGER + """trap 'echo TERM >> "$STANDIN_LOG.signals"; exit 0' TERM
+trap 'echo USR1 >> "$STANDIN_LOG.signals"; exit 0' USR1
+echo $$ > "$STANDIN_LOG.pid"
 touch "$STANDIN_LOG.started"
 i=0
 while [ $i -lt 100 ]; do sleep 0.1; i=$((i + 1)); done
 """
+
+# scancel --signal=TERM JOB: SLURM signals the job's steps, i.e. the stand-in launcher.
+SCANCEL = LOGGER + """kill -TERM "$(cat "$STANDIN_LOG.pid")"
+"""
+
+# srun on a machine whose OpenMPI lacks SLURM's PMI (Debian's): the probe's MPI_Init fails.
+SRUN_NO_PMI = LOGGER + """case "$*" in *mpi4py*)
+    echo 'The application appears to have been direct launched using "srun",' >&2
+    echo "but OMPI was not built with SLURM's PMI support and therefore cannot" >&2
+    exit 1 ;;
+esac
+"""
+
+#: What the scripts must not find on PATH outside the stand-ins.
+SHADOWED = {"srun", "sbatch", "scancel", "squeue", "scontrol", "sinfo", "salloc", "mpirun", "mpiexec",
+            "orterun", "mscap"}
+
+
+@pytest.fixture(scope="module")
+def system_bin(tmp_path_factory) -> Path:
+    """Links to every program of /usr/bin and /bin but SLURM's, MPI's and mscap."""
+    links = tmp_path_factory.mktemp("system-bin")
+    for directory in (Path("/usr/bin"), Path("/bin")):
+        for program in directory.iterdir():
+            target = links / program.name
+            if program.name not in SHADOWED and not target.exists():
+                target.symlink_to(program)
+    return links
 
 
 def calls(log: Path) -> list[list[str]]:
@@ -68,16 +102,16 @@ def mscap_args(call: list[str]) -> list[str]:
 
 
 class Env:
-    def __init__(self, tmp: Path, tools=("srun", "sbatch", "mpirun", "mscap")):
+    def __init__(self, tmp: Path, system_bin: Path, tools=("srun", "sbatch", "scancel", "mpirun", "mscap")):
         self.tmp = tmp
         self.bin = tmp / "bin"
         self.bin.mkdir()
         self.log = tmp / "calls.log"
         for tool in tools:
-            self.add(tool, SBATCH if tool == "sbatch" else LOGGER)
+            self.add(tool, {"sbatch": SBATCH, "scancel": SCANCEL}.get(tool, LOGGER))
         # No venv at MSCAP_VENV: the scripts fall back to the mscap on PATH (the stand-in).
         self.env = {
-            "PATH": f"{self.bin}:/usr/bin:/bin",
+            "PATH": f"{self.bin}:{system_bin}",
             "HOME": str(tmp),
             "STANDIN_LOG": str(self.log),
             "MSCAP_REPO": str(tmp),
@@ -103,10 +137,15 @@ class Env:
     def calls(self):
         return calls(self.log)
 
+    @property
+    def launches(self):
+        """The calls that start mscap (not srun's probe of MPI)."""
+        return [c for c in self.calls if "mscap" in c]
+
 
 @pytest.fixture
-def sandbox(tmp_path):
-    return Env(tmp_path)
+def sandbox(tmp_path, system_bin):
+    return Env(tmp_path, system_bin)
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -131,7 +170,7 @@ def test_sbatch_headers(script):
 def test_run_uses_srun_with_scene_and_output(sandbox):
     sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="8",
                 SCENE="jobs/grid3x3.toml", OUT="out/grid.h5")
-    (call,) = sandbox.calls
+    (call,) = sandbox.launches
     assert call[0] == "srun"
     assert mscap_args(call) == ["run", "jobs/grid3x3.toml", "-o", "out/grid.h5"]
     assert (sandbox.tmp / "out").is_dir()
@@ -140,7 +179,7 @@ def test_run_uses_srun_with_scene_and_output(sandbox):
 def test_run_defaults_and_restrictions(sandbox):
     sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="4", K_MIN="2", K_MAX="4",
                 SEEDS="0:5", QUIET="1", MSCAP_ARGS="--force", SRUN_ARGS="--mpi=pmix")
-    (call,) = sandbox.calls
+    (call,) = sandbox.launches
     assert call[:3] == ["srun", "--mpi=pmix", "mscap"]
     assert mscap_args(call) == ["run", "jobs/poking.toml", "-o", "results.h5", "--k-min", "2",
                                 "--k-max", "4", "--seeds", "0:5", "--quiet", "--force"]
@@ -148,14 +187,14 @@ def test_run_defaults_and_restrictions(sandbox):
 
 def test_run_positional_arguments_win(sandbox):
     sandbox.run("mscap_run.sbatch", "jobs/a b.toml", "r.h5", SLURM_JOB_ID="77", SCENE="x.toml")
-    (call,) = sandbox.calls
+    (call,) = sandbox.launches
     assert mscap_args(call)[:4] == ["run", "jobs/a b.toml", "-o", "r.h5"]
 
 
 def test_run_falls_back_to_mpirun_without_srun(sandbox):
     sandbox.remove("srun")
     proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="6", OUT="r.h5")
-    (call,) = sandbox.calls
+    (call,) = sandbox.launches
     assert call[:4] == ["mpirun", "-n", "6", "mscap"]
     assert mscap_args(call) == ["run", "jobs/poking.toml", "-o", "r.h5"]
     assert "using" in proc.stderr                     # no venv: told which mscap it uses
@@ -163,7 +202,7 @@ def test_run_falls_back_to_mpirun_without_srun(sandbox):
 
 def test_run_outside_slurm_uses_mpirun(sandbox):
     sandbox.run("mscap_run.sbatch", NTASKS="3")      # srun present but no job: not used
-    (call,) = sandbox.calls
+    (call,) = sandbox.launches
     assert call[:4] == ["mpirun", "-n", "3", "mscap"]
 
 
@@ -192,16 +231,54 @@ def test_run_fails_without_mscap(sandbox):
 
 def test_run_passes_exit_status(sandbox):
     sandbox.add("srun", LOGGER + "exit 3\n")
-    proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", check=False)
+    proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", LAUNCHER="srun", check=False)
     assert proc.returncode == 3
 
 
+def test_auto_launcher_probes_srun_once(sandbox):
+    sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="4", SRUN_ARGS="--mpi=pmix")
+    probe, launch = sandbox.calls
+    assert probe[:4] == ["srun", "--ntasks=1", "--nodes=1", "--mpi=pmix"] and "mpi4py" in probe[-1]
+    assert launch[:3] == ["srun", "--mpi=pmix", "mscap"]
+
+
+def test_auto_launcher_uses_mpirun_when_srun_lacks_pmi(sandbox):
+    """Debian's OpenMPI under srun: the job runs with mpirun inside the allocation, and says why."""
+    sandbox.add("srun", SRUN_NO_PMI)
+    proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="4")
+    (call,) = sandbox.launches
+    assert call[:4] == ["mpirun", "-n", "4", "mscap"]
+    assert "not built with SLURM's PMI support" in proc.stderr and "SRUN_ARGS=--mpi=pmix" in proc.stderr
+    assert "using mpirun inside the allocation" in proc.stderr
+
+
+@pytest.mark.parametrize("launcher, first", [("srun", "srun"), ("mpirun", "mpirun")])
+def test_launcher_chosen_by_hand_is_not_probed(sandbox, launcher, first):
+    sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="3", LAUNCHER=launcher)
+    (call,) = sandbox.calls
+    assert call[0] == first
+
+
+def test_bad_launcher_is_refused(sandbox):
+    proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", LAUNCHER="ssh", check=False)
+    assert proc.returncode == 2 and "LAUNCHER must be auto, srun or mpirun" in proc.stderr
+    proc = sandbox.run("mscap_run.sbatch", LAUNCHER="srun", check=False)      # no job
+    assert proc.returncode == 2 and "needs a SLURM job" in proc.stderr
+    assert sandbox.launches == []
+
+
 @pytest.mark.parametrize("script", ["mscap_run.sbatch", "mscap_array.sbatch"])
-def test_sigterm_is_forwarded_to_launcher(sandbox, script):
-    """SLURM's --signal=B:TERM@120 reaches the batch shell: it must pass it to srun."""
-    sandbox.add("srun", SLOW)
+@pytest.mark.parametrize("launcher, route, received", [
+    ("srun", ["scancel", "--signal=TERM", "77"], "TERM"),   # srun would SIGKILL its tasks on a TERM
+    ("mpirun", None, "USR1"),                                # mpirun passes USR1 on to every rank
+])
+def test_stop_reaches_mscap_without_killing_it(sandbox, script, launcher, route, received):
+    """SLURM's --signal=B:TERM@120 (or scancel) reaches the batch shell: it must ask mscap's
+    master to stop by the route that does not kill the ranks, and return mscap's status."""
+    sandbox.add(launcher, SLOW)
     proc = subprocess.Popen([BASH, str(SLURM / script)], cwd=sandbox.tmp,
-                            env={**sandbox.env, "SLURM_JOB_ID": "77", "SLURM_ARRAY_TASK_ID": "2"},
+                            env={**sandbox.env, "SLURM_JOB_ID": "77", "SLURM_ARRAY_TASK_ID": "2",
+                                 "LAUNCHER": launcher},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     started = sandbox.tmp / "calls.log.started"
     deadline = time.monotonic() + 10
@@ -210,8 +287,11 @@ def test_sigterm_is_forwarded_to_launcher(sandbox, script):
     assert started.exists()
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=10)
-    assert (sandbox.tmp / "calls.log.signals").read_text().split() == ["TERM"]
-    assert proc.returncode == 143, err
+    assert (sandbox.tmp / "calls.log.signals").read_text().split() == [received]
+    assert proc.returncode == 0, err
+    assert "stop requested" in err
+    scancels = [c for c in sandbox.calls if c[0] == "scancel"]
+    assert scancels == ([route] if route else [])
 
 
 # --- mscap_array.sbatch -----------------------------------------------------------------------
@@ -220,7 +300,7 @@ def test_sigterm_is_forwarded_to_launcher(sandbox, script):
 def test_array_task_runs_its_k(sandbox, task):
     sandbox.run("mscap_array.sbatch", SLURM_JOB_ID="90", SLURM_ARRAY_TASK_ID=task,
                 SLURM_NTASKS="4", SCENE="jobs/grid3x3.toml", OUTDIR="parts")
-    (call,) = sandbox.calls
+    (call,) = sandbox.launches
     assert call[0] == "srun"
     assert mscap_args(call) == ["run", "jobs/grid3x3.toml", "-o", f"parts/results_k{task}.h5",
                                 "--k-min", task, "--k-max", task]
@@ -231,7 +311,7 @@ def test_array_k_split_with_seed_restriction_and_mpirun(sandbox):
     sandbox.remove("srun")
     sandbox.run("mscap_array.sbatch", SLURM_JOB_ID="90", SLURM_ARRAY_TASK_ID="4",
                 SLURM_NTASKS="5", SEEDS="0:10", QUIET="1")
-    (call,) = sandbox.calls
+    (call,) = sandbox.launches
     assert call[:4] == ["mpirun", "-n", "5", "mscap"]
     assert mscap_args(call) == ["run", "jobs/poking.toml", "-o", "results/results_k4.h5",
                                 "--k-min", "4", "--k-max", "4", "--seeds", "0:10", "--quiet"]
@@ -241,7 +321,7 @@ def test_array_k_split_with_seed_restriction_and_mpirun(sandbox):
 def test_array_task_runs_its_seed_chunk(sandbox, task, seeds):
     sandbox.run("mscap_array.sbatch", SLURM_JOB_ID="90", SLURM_ARRAY_TASK_ID=task, SPLIT="seeds",
                 SEED_CHUNK="5", SEEDS_TOTAL="22", K_MIN="2", K_MAX="3")
-    (call,) = sandbox.calls
+    (call,) = sandbox.launches
     a, b = seeds.split(":")
     assert mscap_args(call) == ["run", "jobs/poking.toml", "-o",
                                 f"results/results_seeds{a}-{b}.h5", "--seeds", seeds,
@@ -402,3 +482,23 @@ def test_submit_merge_fails_with_no_parts(sandbox):
                           capture_output=True, text=True, timeout=10)
     assert proc.returncode == 1 and "no parts" in proc.stderr
     assert [c[0] for c in sandbox.calls] == ["sbatch", "sbatch"]
+
+
+def test_submit_export_after_dashes_adds_to_the_tasks_settings(sandbox):
+    """slurm/README's `-- --export=ALL,SRUN_ARGS=...` must not replace the scene and OUTDIR."""
+    s = scene(sandbox.tmp, "k_min = 2\nk_max = 3")
+    sandbox.run("submit_array.sh", "jobs/tiny.toml", "--", "--ntasks=4",
+                "--export=ALL,SRUN_ARGS=--mpi=pmix,LAUNCHER=srun", MSCAP_REPO=str(sandbox.tmp))
+    array, _ = sandbox.calls
+    assert sum(a.startswith("--export") for a in array) == 1
+    exports = dict(kv.split("=", 1) for kv in option(array, "--export").split(",")[1:])
+    assert exports["SCENE"] == str(s) and exports["SRUN_ARGS"] == "--mpi=pmix" and exports["LAUNCHER"] == "srun"
+    assert "--ntasks=4" in array
+
+
+@pytest.mark.parametrize("bad", ["--export=NONE", "--export"])
+def test_submit_refuses_an_export_that_drops_the_settings(sandbox, bad):
+    scene(sandbox.tmp)
+    proc = sandbox.run("submit_array.sh", "jobs/tiny.toml", "--", bad, "X=1", check=False)
+    assert proc.returncode == 2 and "--export" in proc.stderr
+    assert sandbox.calls == []

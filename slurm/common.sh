@@ -1,0 +1,122 @@
+# Shared by mscap_run.sbatch and mscap_array.sbatch (sourced, after `cd "$MSCAP_REPO"`):
+# the environment of a job, the choice of launcher, and a launch that stops cleanly.
+#
+#   mscap_environment NAME     activate the venv, one thread per rank, OpenMPI as root
+#   mscap_launcher NAME        sets the array `launcher`: srun or mpirun (LAUNCHER, below)
+#   mscap_launch NAME ARGS...  runs `launcher mscap ARGS...`, passes a stop on, returns its status
+#
+# LAUNCHER (environment):
+#   auto    (default) inside a SLURM job: srun if one probe task shows srun can start an MPI
+#           program here, else mpirun inside the allocation (with the reason); outside a job: mpirun
+#   srun    srun with SRUN_ARGS (e.g. --mpi=pmix), no probe
+#   mpirun  mpirun -n $SLURM_NTASKS (OpenMPI reads the allocation); outside SLURM -n $NTASKS
+#
+# Stopping (SLURM's `--signal=B:TERM@120` before the time limit, or Ctrl-C by hand) asks
+# mscap's master, and only it, to stop: it stores what has finished and ends the job with
+# status 0. The two launchers need different routes, measured on SLURM 22.05 with OpenMPI 4.1
+# (slurm/README.md): a TERM to srun makes srun SIGKILL every task, so the script signals the
+# job's steps instead (`scancel --signal=TERM JOB`, which leaves the batch script alone); a TERM
+# to mpirun makes mpirun kill the ranks, while SIGUSR1 is passed on to every rank untouched,
+# so mpirun gets SIGUSR1. mscap's workers ignore both signals (mscap/service/farm.py).
+
+mscap_environment() {
+    local name="$1"
+    if [[ -f "$MSCAP_VENV/bin/activate" ]]; then
+        set +u
+        # shellcheck disable=SC1091
+        source "$MSCAP_VENV/bin/activate"
+        set -u
+    elif command -v mscap >/dev/null 2>&1; then
+        echo "$name: no venv at $MSCAP_VENV, using $(command -v mscap)" >&2
+    else
+        echo "$name: no venv at $MSCAP_VENV and no mscap on PATH (set MSCAP_VENV, or run make)" >&2
+        exit 1
+    fi
+    # One thread per rank: each worker runs its own PETSc on COMM_SELF.
+    export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
+    if [[ "$(id -u)" == 0 ]]; then   # containers: OpenMPI refuses root otherwise
+        export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+    fi
+}
+
+# Can srun start an MPI program in this job? One task, one MPI_Init. Prints the reason when not.
+srun_can_start_mpi() {
+    local out
+    if out="$(srun --ntasks=1 --nodes=1 "${srun_extra[@]}" python3 -c \
+            'from mpi4py import MPI; MPI.COMM_WORLD.Barrier()' 2>&1)"; then
+        return 0
+    fi
+    if grep -q "PMI" <<< "$out"; then
+        echo "srun cannot start this MPI: it was not built with SLURM's PMI support (OpenMPI: \"direct launched" \
+             "using srun ... not built with SLURM's PMI support\"; give srun the PMI flavour it needs with" \
+             "SRUN_ARGS=--mpi=pmix, see srun --mpi=list)"
+    else
+        echo "srun cannot start an MPI program here: $(grep -m1 -i "error" <<< "$out" || tail -n1 <<< "$out")"
+    fi
+    return 1
+}
+
+mscap_launcher() {
+    local name="$1" mode="${LAUNCHER:-auto}" ntasks="${SLURM_NTASKS:-${NTASKS:-1}}" why
+    srun_extra=()
+    if [[ -n "${SRUN_ARGS:-}" ]]; then
+        read -r -a srun_extra <<< "$SRUN_ARGS"
+    fi
+    local in_job=0
+    if [[ -n "${SLURM_JOB_ID:-}" ]] && command -v srun >/dev/null 2>&1; then
+        in_job=1
+    fi
+    case "$mode" in
+        auto)
+            if (( in_job )) && why="$(srun_can_start_mpi)"; then
+                mode=srun
+            else
+                (( in_job )) && echo "$name: $why; using mpirun inside the allocation" >&2
+                mode=mpirun
+            fi
+            ;;
+        srun)
+            (( in_job )) || { echo "$name: LAUNCHER=srun needs a SLURM job and srun" >&2; exit 2; }
+            ;;
+        mpirun) ;;
+        *) echo "$name: LAUNCHER must be auto, srun or mpirun, not '$mode'" >&2; exit 2 ;;
+    esac
+    if [[ "$mode" == srun ]]; then
+        launcher=(srun "${srun_extra[@]}")
+    else
+        launcher=(mpirun -n "$ntasks")
+    fi
+}
+
+# Ask mscap's master to stop (see the top of this file).
+mscap_stop() {
+    local name="$1"
+    echo "$name: stop requested ($(date -u '+%F %T') UTC): mscap stores what has finished and stops" >&2
+    [[ -n "$child" ]] || return 0
+    if [[ "${launcher[0]}" == srun ]]; then
+        scancel --signal=TERM "$SLURM_JOB_ID" 2>/dev/null || kill -TERM "$child" 2>/dev/null || true
+    else
+        kill -USR1 "$child" 2>/dev/null || true
+    fi
+}
+
+mscap_launch() {
+    local name="$1"
+    shift
+    echo "$name: ${launcher[*]} mscap $* (job ${SLURM_JOB_ID:-none}, $(date -u '+%F %T') UTC)" >&2
+    # The launcher runs in the background so the trap runs while it does (a signal that comes
+    # before the launcher's pid is known is passed on just after).
+    child=""
+    stop=0
+    trap 'stop=1; mscap_stop "$name"' TERM INT
+    "${launcher[@]}" mscap "$@" &
+    child=$!
+    if (( stop )); then mscap_stop "$name"; fi
+    status=0
+    wait "$child" || status=$?
+    while kill -0 "$child" 2>/dev/null; do   # wait returned early because of a signal
+        status=0
+        wait "$child" || status=$?
+    done
+    trap - TERM INT
+}

@@ -1,0 +1,220 @@
+#!/bin/bash
+# The SLURM scripts against a real SLURM: a private one-node cluster on this machine.
+#
+#   slurm/selftest.sh            skip (status 0, a "skipped:" line) where it cannot run
+#   slurm/selftest.sh --require  fail instead of skipping (.ci/run)
+#   slurm/selftest.sh --keep     keep the cluster's directory (config, logs, results)
+#
+# Needs root on Debian (apt-get installs slurmctld, slurmd, slurm-client and munge when
+# missing) and no SLURM controller already running here (a cluster's login node keeps its
+# own SLURM untouched: the test skips). It writes a slurm.conf for this host (all CPUs, one
+# partition, proctrack/cgroup) into a temporary directory, starts munged (on its own
+# socket), slurmctld and slurmd, and stops them by PID at the end, whatever happens.
+# On jobs/quick.toml, with short runs, it checks four things a cluster user relies on:
+#   1. a single job (slurm/mscap_run.sbatch) completes and stores its runs;
+#   2. a job array with its dependent merge (slurm/submit_array.sh) merges every part;
+#   3. `scancel` stops a job, and resubmitting the same command completes it (resume);
+#   4. a job that reaches its --signal=B:TERM warning before the time limit stops cleanly:
+#      finished runs stored, "stopped" logged, state COMPLETED (exit 0) or TIMEOUT.
+# About 3 minutes on 2 cores.
+set -euo pipefail
+
+REQUIRE=0
+KEEP=0
+for a in "$@"; do
+    case "$a" in
+        --require) REQUIRE=1 ;;
+        --keep) KEEP=1 ;;
+        -h|--help) sed -n '2,/^set -euo/p' "${BASH_SOURCE[0]}" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
+        *) echo "selftest: unknown argument $a" >&2; exit 2 ;;
+    esac
+done
+
+REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="${MSCAP_VENV:-$REPO/.venv}"
+SCENE="$REPO/jobs/quick.toml"
+
+skip() {
+    if (( REQUIRE )); then
+        echo "selftest: FAILED: cannot run here: $*" >&2
+        exit 1
+    fi
+    echo "selftest: skipped: $*"
+    exit 0
+}
+fail() { echo "selftest: FAILED: $*" >&2; exit 1; }
+say() { echo "selftest: $*"; }
+
+[[ "$(id -u)" == 0 ]] || skip "needs root (installs and starts SLURM daemons)"
+command -v dpkg-query >/dev/null 2>&1 || skip "not a Debian system"
+[[ -x "$VENV/bin/mscap" ]] || skip "no mscap in $VENV (run make install first)"
+if pgrep -x slurmctld >/dev/null 2>&1; then
+    skip "a slurmctld already runs on this machine; the self-test builds its own cluster only where there is none"
+fi
+
+packages=(slurmctld slurmd slurm-client munge)
+missing=()
+for p in "${packages[@]}"; do
+    dpkg-query -W -f='${Status}\n' "$p" 2>/dev/null | grep -q '^install ok installed' || missing+=("$p")
+done
+if (( ${#missing[@]} )); then
+    say "installing ${missing[*]}"
+    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+        "${missing[@]}"; } >/dev/null 2>&1 || skip "apt-get could not install ${missing[*]}"
+fi
+[[ -r /etc/munge/munge.key ]] || skip "no munge key at /etc/munge/munge.key"
+
+dir="$(mktemp -d /tmp/mscap-slurm.XXXXXX)"
+host="$(hostname -s)"
+cpus="$(nproc)"
+pids=()
+cleanup() {
+    local status=$?
+    for pid in ${pids[@]+"${pids[@]}"}; do kill -TERM "$pid" 2>/dev/null || true; done
+    for pid in ${pids[@]+"${pids[@]}"}; do
+        for _ in $(seq 50); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
+        kill -KILL "$pid" 2>/dev/null || true
+    done
+    if (( KEEP )); then say "kept $dir"; else rm -rf "$dir"; fi
+    exit "$status"
+}
+trap cleanup EXIT
+
+# Free ports: the controller's and the node daemon's.
+read -r ctld_port slurmd_port < <(python3 -c '
+import socket
+ports = []
+for _ in range(2):
+    s = socket.socket(); s.bind(("", 0)); ports.append(s.getsockname()[1]); s.close()
+print(*ports)')
+
+mkdir -p "$dir"/{state,spool,log,munge,results}
+chmod 700 "$dir/munge"
+cat > "$dir/slurm.conf" <<EOF
+ClusterName=mscap-selftest
+SlurmctldHost=$host
+SlurmUser=root
+SlurmdUser=root
+AuthType=auth/munge
+AuthInfo=socket=$dir/munge/munge.socket
+SlurmctldPort=$ctld_port
+SlurmdPort=$slurmd_port
+StateSaveLocation=$dir/state
+SlurmdSpoolDir=$dir/spool
+SlurmctldPidFile=$dir/slurmctld.pid
+SlurmdPidFile=$dir/slurmd.pid
+SlurmctldLogFile=$dir/log/slurmctld.log
+SlurmdLogFile=$dir/log/slurmd.log
+ProctrackType=proctrack/cgroup
+TaskPlugin=task/none
+SelectType=select/cons_tres
+SelectTypeParameters=CR_Core
+MpiDefault=none
+ReturnToService=2
+KillWait=10
+MinJobAge=600
+NodeName=$host CPUs=$cpus State=UNKNOWN
+PartitionName=selftest Nodes=$host Default=YES MaxTime=INFINITE State=UP
+EOF
+printf 'CgroupPlugin=autodetect\nConstrainCores=no\nConstrainRAMSpace=no\n' > "$dir/cgroup.conf"
+export SLURM_CONF="$dir/slurm.conf"
+
+/usr/sbin/munged --socket="$dir/munge/munge.socket" --pid-file="$dir/munge/munged.pid" \
+    --log-file="$dir/log/munged.log" --seed-file="$dir/munge/seed" --force \
+    || fail "munged did not start ($(tail -n2 "$dir/log/munged.log" 2>/dev/null))"
+pids+=("$(cat "$dir/munge/munged.pid")")
+slurmctld -f "$SLURM_CONF" || fail "slurmctld did not start"
+for _ in $(seq 50); do [[ -s "$dir/slurmctld.pid" ]] && break; sleep 0.1; done
+pids+=("$(cat "$dir/slurmctld.pid")")
+slurmd -f "$SLURM_CONF" || fail "slurmd did not start"
+for _ in $(seq 50); do [[ -s "$dir/slurmd.pid" ]] && break; sleep 0.1; done
+pids+=("$(cat "$dir/slurmd.pid")")
+for _ in $(seq 150); do
+    [[ "$(sinfo -h -o %T 2>/dev/null)" == idle ]] && break
+    sleep 0.2
+done
+[[ "$(sinfo -h -o %T 2>/dev/null)" == idle ]] || fail "the node did not come up: $(sinfo 2>&1; tail -n5 "$dir/log/slurmd.log")"
+say "one-node SLURM $(sinfo -V | cut -d' ' -f2) up on $host ($cpus CPUs), daemons ${pids[*]}"
+
+cd "$REPO"
+export MSCAP_VENV="$VENV"
+res="$dir/results"
+state() { scontrol show job "$1" 2>/dev/null | grep -o 'JobState=[A-Z_]*' | head -n1 | cut -d= -f2; }
+exit_code() { scontrol show job "$1" 2>/dev/null | grep -o ' ExitCode=[0-9:]*' | head -n1 | cut -d= -f2; }
+wait_job() {   # wait_job ID SECONDS: until the job has ended
+    local id="$1" t0=$SECONDS
+    while (( SECONDS - t0 < $2 )); do
+        case "$(state "$id")" in PENDING|RUNNING|CONFIGURING|COMPLETING|"") sleep 1 ;; *) return 0 ;; esac
+    done
+    fail "job $id still $(state "$id") after $2 s"
+}
+stored() {   # the number of finished runs in an HDF5 file
+    "$VENV/bin/python" - "$1" <<'PY'
+import sys, h5py
+with h5py.File(sys.argv[1], "r") as f:
+    print(sum(1 for g in f.get("runs", {}).values() if g.attrs.get("status") in ("ok", "failed", "pruned")))
+PY
+}
+# Short runs of the default scene; -O puts the master and both workers on this node's CPUs.
+short="--max-iterations 2"
+
+# 4. The time limit (first: it runs beside the others). SLURM sends the warning up to 60 s
+#    earlier than asked, so 90 s before a 3-minute limit comes 30 to 90 s into the job.
+tl=$(sbatch --parsable --time=00:03:00 --signal=B:TERM@90 --ntasks=3 -O -o "$res/timelimit-%j.out" \
+    --export=ALL,SCENE="$SCENE",OUT="$res/timelimit.h5",MSCAP_ARGS="--starts-per-k 8" slurm/mscap_run.sbatch)
+
+# 1. A single job.
+one=$(sbatch --parsable --ntasks=3 -O -o "$res/single-%j.out" \
+    --export=ALL,SCENE="$SCENE",OUT="$res/single.h5",K_MIN=2,K_MAX=2,SEEDS=0:2,MSCAP_ARGS="$short" \
+    slurm/mscap_run.sbatch)
+wait_job "$one" 300
+[[ "$(state "$one")" == COMPLETED ]] || fail "single job $one: $(state "$one"); log: $(tail -n5 "$res/single-$one.out")"
+[[ "$(stored "$res/single.h5")" == 2 ]] || fail "single job $one stored $(stored "$res/single.h5") runs, not 2"
+say "1. single job $one: COMPLETED, 2 runs stored"
+
+# 2. An array (one task per seed, k = 2) and its merge.
+out=$(slurm/submit_array.sh --split seeds --seed-chunk 1 --seeds-total 2 --k-min 2 --k-max 2 \
+    --outdir "$res/array" "$SCENE" -- --ntasks=2 -O -o "$res/array-%A_%a.out" --export=MSCAP_ARGS="$short")
+merge=$(grep -o 'merge job [0-9]*' <<< "$out" | cut -d' ' -f3)
+[[ -n "$merge" ]] || fail "submit_array.sh printed no merge job: $out"
+wait_job "$merge" 300
+[[ "$(state "$merge")" == COMPLETED ]] || fail "merge job $merge: $(state "$merge")"
+[[ "$(stored "$res/array/all.h5")" == 2 ]] || fail "the merged file holds $(stored "$res/array/all.h5") runs, not 2"
+say "2. array + merge: parts $(cd "$res/array" && ls results_*.h5 | tr '\n' ' ')merged by job $merge into all.h5 (2 runs)"
+
+# 3. scancel after the first stored run, then the same submission resumes.
+submit_resume() {
+    sbatch --parsable --ntasks=3 -O -o "$res/resume-%j.out" \
+        --export=ALL,SCENE="$SCENE",OUT="$res/resume.h5",K_MIN=3,K_MAX=3,SEEDS=0:4,MSCAP_ARGS="$short" \
+        slurm/mscap_run.sbatch
+}
+first=$(submit_resume)
+t0=$SECONDS
+until grep -q '^\[1/' "$res/resume-$first.out" 2>/dev/null; do
+    (( SECONDS - t0 < 300 )) || fail "job $first stored no run in 300 s"
+    sleep 0.5
+done
+scancel "$first"
+wait_job "$first" 120
+before=$(stored "$res/resume.h5")
+(( before >= 1 && before < 4 )) || fail "the cancelled job $first left $before runs (expected 1 to 3)"
+second=$(submit_resume)
+wait_job "$second" 300
+[[ "$(state "$second")" == COMPLETED ]] || fail "resumed job $second: $(state "$second")"
+grep -q "$before runs already stored, $(( 4 - before )) to do" "$res/resume-$second.out" \
+    || fail "job $second did not resume: $(grep 'to do' "$res/resume-$second.out")"
+[[ "$(stored "$res/resume.h5")" == 4 ]] || fail "after the resume $(stored "$res/resume.h5") runs, not 4"
+say "3. scancel + resubmit: job $first $(state "$first") with $before runs stored; job $second resumed the other $(( 4 - before ))"
+
+# 4, continued.
+wait_job "$tl" 400
+log="$res/timelimit-$tl.out"
+tl_state="$(state "$tl")"
+[[ "$tl_state" == COMPLETED || "$tl_state" == TIMEOUT ]] \
+    || fail "time-limited job $tl ended $tl_state; log: $(tail -n5 "$log")"
+grep -q '^stopped: ' "$log" || fail "time-limited job $tl logged no 'stopped' line: $(tail -n5 "$log")"
+n=$(stored "$res/timelimit.h5")
+(( n >= 1 && n < 24 )) || fail "time-limited job $tl stored $n runs (expected 1 to 23)"
+say "4. time limit: job $tl $tl_state (ExitCode $(exit_code "$tl")), $n of 24 runs stored; its log:"
+grep -E '^(mscap_run: stop|stopped: |mscap_run: exit)' "$log" | sed 's/^/       /'
+say "passed"

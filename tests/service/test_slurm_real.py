@@ -1,0 +1,30 @@
+"""The SLURM scripts on a real one-node SLURM (slurm/selftest.sh, about 2 minutes).
+
+The self-test installs Debian's SLURM and munge where they are missing, runs its own
+cluster and stops it. Where it cannot run (not root, not Debian, a SLURM already running)
+it says so and this test is skipped, unless ``MSCAP_SLURM_SELFTEST=require`` (.ci/run), which
+makes that a failure. Its report goes to the terminal, so the CI log shows what passed.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_shipped_scripts_on_a_real_slurm(capsys):
+    require = os.environ.get("MSCAP_SLURM_SELFTEST") == "require"
+    command = [str(ROOT / "slurm" / "selftest.sh")] + (["--require"] if require else [])
+    proc = subprocess.run(command, capture_output=True, text=True, timeout=900)
+    with capsys.disabled():
+        print("\n" + proc.stdout + proc.stderr, end="")
+    if proc.returncode == 0 and "selftest: skipped:" in proc.stdout:
+        pytest.skip(proc.stdout.strip().splitlines()[-1])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for check in ("1. single job", "2. array + merge", "3. scancel + resubmit", "4. time limit", "passed"):
+        assert f"selftest: {check}" in proc.stdout
