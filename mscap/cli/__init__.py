@@ -27,7 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mscap", description="Design capacitive stretch sensors.",
         epilog="PETSc options (-ksp_type, -log_view, ...) given after the subcommand's "
-               "arguments go to PETSc.")
+               "arguments go to PETSc; those nothing read are named in a warning at the end.")
     parser.add_argument("--version", action="version", version=f"mscap {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -47,13 +47,29 @@ def main(argv: list[str] | None = None) -> int:
                         logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        return args.run(args) or 0
+        status = args.run(args) or 0
     except MscapError as exc:
         print(f"mscap: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("mscap: interrupted", file=sys.stderr)
         return 130
+    _warn_unused_petsc_options(petsc_args)
+    return status
+
+
+def _warn_unused_petsc_options(petsc_args: list[str]) -> None:
+    """Name the PETSc options nothing read: PETSc ignores a misspelt ``-ksp_tpye`` in
+    silence, and commands such as ``mesh`` do not start PETSc at all."""
+    if "petsc4py.PETSc" in sys.modules:
+        from mscap.fem.petsc import unused_options
+
+        unused = unused_options()
+    else:
+        unused = [a for a in petsc_args if a.startswith("-") and a[1:2].isalpha()]
+    if unused:
+        print(f"mscap: warning: PETSc options never used (misspelt, or for a solver this command "
+              f"does not run): {' '.join(unused)}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -19,9 +19,11 @@ def add_parser(sub) -> None:
     p.add_argument("--order", type=int, choices=(1, 2), help="electrostatic element order (default: the scene's)")
     p.add_argument("--elastic-order", type=int, choices=(1, 2), help="elastic element order (default: the scene's)")
     p.add_argument("--poses", help="comma-separated pose names to run (default: all)")
-    p.add_argument("--export", metavar="DIR", help="write DIR/<pose>.vtu: displacement, J, stress, φ "
-                                                   "(J and stress in DIR/<pose>_elastic.vtu when the "
-                                                   "elastic problem has its own mesh)")
+    p.add_argument("--export", metavar="DIR", help="write DIR/<pose>.vtu: the rest mesh with point data "
+                                                   "displacement (Warp By Vector, scale 1, draws the pose), φ; "
+                                                   "J and stress (in DIR/<pose>_elastic.vtu when the elastic "
+                                                   "problem has its own mesh); DIR/poses.pvd (and "
+                                                   "poses_elastic.pvd) steps through the poses in ParaView")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(run=run)

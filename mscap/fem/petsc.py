@@ -4,10 +4,13 @@ Debian installs petsc4py under ``$PETSC_DIR/lib/python3/dist-packages`` and adds
 ``sys.path`` through a ``.pth`` file only if ``PETSC_DIR`` is set when Python starts.
 :func:`petsc` makes this automatic: it finds the installed PETSc when ``PETSC_DIR`` is
 unset, so ``mscap``, ``pytest`` and ``mpirun`` work without any environment set-up.
+:func:`unused_options` names the command line's options that nothing read (a misspelt
+``-ksp_tpye``), for the CLI to warn about.
 """
 
 from __future__ import annotations
 
+import ctypes
 import glob
 import os
 import sys
@@ -19,7 +22,7 @@ import scipy.sparse as sp
 from mscap.errors import LinearSolveError
 from mscap.fem.profile import section
 
-__all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "LinearSolver",
+__all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "unused_options", "LinearSolver",
            "LinearSolveError", "Operator"]
 
 _DEBIAN_PETSC = "/usr/lib/petscdir/petsc*/*-real"
@@ -55,7 +58,8 @@ def petsc(argv: list[str] | None = None):
             sys.path.append(site)
     import petsc4py
 
-    petsc4py.init([sys.argv[0]] + list(argv or []))
+    program = sys.executable if sys.argv[0].startswith("-") else sys.argv[0]  # python -c: "-c" is no option
+    petsc4py.init([program, *(argv or [])])
     from petsc4py import PETSc
 
     _command_line = set(PETSc.Options().getAll())
@@ -81,6 +85,34 @@ def set_scene_options(options) -> None:
     for name, value in options:
         if name not in _command_line:
             database.setValue(name, value)
+
+
+#: Options PETSc reads only in PetscFinalize, after any check of ours.
+_READ_AT_EXIT = ("options_left", "options_view")
+
+
+def unused_options() -> list[str]:
+    """The options of the command line, ``PETSC_OPTIONS`` and ``.petscrc`` (not a
+    scene's ``[petsc]`` table) that nothing has read so far, as ``-name``.
+
+    Empty when the command line gave ``-options_left`` (PETSc itself then lists the
+    unused options at exit, or, given ``-options_left 0``, does not) and under MPI with
+    more than one rank (the master reads no solver options). petsc4py does not expose
+    ``PetscOptionsUsed``; it is called through ctypes from the library the ``PETSc``
+    module links.
+    """
+    PETSc = petsc()
+    if PETSc.Options().hasName("options_left") or PETSc.COMM_WORLD.getSize() > 1:
+        return []
+    used = ctypes.CDLL(PETSc.__file__).PetscOptionsUsed
+    used.argtypes = (ctypes.c_void_p, ctypes.c_char_p, ctypes.POINTER(ctypes.c_int))
+    flag = ctypes.c_int()
+    unused = []
+    for name in sorted(_command_line.difference(_READ_AT_EXIT)):
+        used(None, name.encode(), ctypes.byref(flag))
+        if not flag.value:
+            unused.append(f"-{name}")
+    return unused
 
 
 class _Wrapped(NamedTuple):

@@ -25,24 +25,25 @@ class TetData:
 
 def write_mesh(path: str | Path, mesh: LayeredMesh, points: np.ndarray | None = None,
                point_data: dict[str, np.ndarray] | None = None,
-               cell_data: dict[str, np.ndarray] | None = None) -> None:
+               cell_data: dict[str, np.ndarray] | None = None, tags: bool = True) -> None:
     """Write ``mesh`` (optionally at deformed ``points``) to a VTU file.
 
-    Cell data ``layer`` (0..4, bottom to top) and ``capacitor`` (index or -1), plus any
-    ``cell_data`` given (one row per tet).
+    Cell data ``layer`` (0..4, bottom to top) and ``capacitor`` (index or -1) unless
+    ``tags`` is false (an elastic mesh's are not the stack's), plus any ``cell_data``
+    given (one row per tet).
     """
     import meshio
 
     cells = [("tetra", np.asarray(mesh.tets, dtype=np.int64))]
+    tag_data = {"layer": [mesh.layer_of_tet.astype(np.int32)],
+                "capacitor": [mesh.capacitor_of_tet.astype(np.int32)]} if tags else {}
     meshio.write(
         str(path),
         meshio.Mesh(
             np.asarray(mesh.points if points is None else points, dtype=float),
             cells,
             point_data=dict(point_data or {}),
-            cell_data={"layer": [mesh.layer_of_tet.astype(np.int32)],
-                       "capacitor": [mesh.capacitor_of_tet.astype(np.int32)],
-                       **{name: [np.asarray(value)] for name, value in (cell_data or {}).items()}},
+            cell_data={**tag_data, **{name: [np.asarray(value)] for name, value in (cell_data or {}).items()}},
         ),
         binary=True,
     )

@@ -1,15 +1,24 @@
 """Solved fields as VTU files for ParaView: the potentials of ``mscap capacitance`` and
-every pose of ``mscap simulate`` (displacement, φ per capacitor, J, stress, von Mises)."""
+every pose of ``mscap simulate`` (displacement, φ per capacitor, J, stress, von Mises).
+
+One convention: every file holds its mesh at rest, and a pose's file the point field
+``displacement`` (mm) to its equilibrium, so ParaView's Warp By Vector at scale 1 (pyvista:
+``warp_by_vector``) draws the deformed pose and scale 0 the rest layout. ``poses.pvd``
+(and ``poses_elastic.pvd`` for an elastic mesh of its own) collects the poses as time
+steps 0, 1, ... in the scene's order: open it and step through them.
+"""
 
 from __future__ import annotations
 
+import os
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
 from mscap.mesh.io import write_mesh
 
-__all__ = ["write_potentials", "write_poses"]
+__all__ = ["write_potentials", "write_poses", "write_pose", "write_collection"]
 
 
 def _field_name(problem, plate: int) -> str:
@@ -30,16 +39,24 @@ def write_potentials(directory, mesh, problem, caps) -> Path:
 
 
 def write_poses(directory, sim) -> list[Path]:
-    """One :func:`write_pose` per pose of the ``Simulation`` ``sim``; the files written."""
+    """:func:`write_pose` for every pose of the ``Simulation`` ``sim``, then
+    ``poses.pvd`` over the ``<pose>.vtu`` and ``poses_elastic.pvd`` over the
+    ``<pose>_elastic.vtu`` files; the files written."""
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
-    return [path for result in sim.poses for path in write_pose(out, sim, result)]
+    per_pose = [write_pose(out, sim, result) for result in sim.poses]
+    names = [result.name for result in sim.poses]
+    collections = [write_collection(out / collection, names, files)
+                   for collection, files in zip(("poses.pvd", "poses_elastic.pvd"), zip(*per_pose))]
+    return [path for files in per_pose for path in files] + collections
 
 
 def write_pose(directory: Path, sim, result) -> list[Path]:
-    """``<pose>.vtu`` on the electrostatic mesh (displacement, φ_j; J and stress too when
-    the elastic problem shares the mesh) and, for an elastic problem on its own mesh,
-    ``<pose>_elastic.vtu`` with its displacement, J and stress."""
+    """``<pose>.vtu``: the electrostatic mesh at rest with the pose's ``displacement`` and
+    φ_j (J and stress too when the elastic problem shares the mesh) and, for an elastic
+    problem on its own mesh, ``<pose>_elastic.vtu``: that mesh at rest with its
+    ``displacement``, J and stress (without the ``layer`` and ``capacitor`` tags, which
+    belong to the electrostatic mesh)."""
     from mscap.fem.elastic.problem import tet_fields
 
     mesh, problem = sim.mesh, sim.elastic
@@ -59,11 +76,22 @@ def write_pose(directory: Path, sim, result) -> list[Path]:
             cell_data = fields
         else:
             path = directory / f"{result.name}_elastic.vtu"
-            vertices = nodes[:problem.n_vertices]
-            write_mesh(path, problem.mesh, points=vertices,
-                       point_data={"displacement": vertices - problem.mesh.points}, cell_data=fields)
+            displacement = nodes[:problem.n_vertices] - problem.mesh.points
+            write_mesh(path, problem.mesh, point_data={"displacement": displacement}, cell_data=fields, tags=False)
             written.append(path)
     path = directory / f"{result.name}.vtu"
-    write_mesh(path, mesh, points=result.vertices, point_data=point_data, cell_data=cell_data)
+    write_mesh(path, mesh, point_data=point_data, cell_data=cell_data)
     return [path] + written
 
+
+def write_collection(path: Path, names: list[str], files: list[Path]) -> Path:
+    """The ParaView collection ``path`` (``.pvd``): time step i is ``files[i]``, named
+    ``names[i]``, by its path relative to the collection."""
+    root = ET.Element("VTKFile", type="Collection", version="0.1", byte_order="LittleEndian")
+    collection = ET.SubElement(root, "Collection")
+    for step, (name, file) in enumerate(zip(names, files)):
+        ET.SubElement(collection, "DataSet", timestep=str(step), group="", part="0", name=name,
+                      file=os.path.relpath(file, path.parent))
+    ET.indent(root)
+    ET.ElementTree(root).write(path, encoding="utf-8", xml_declaration=True)
+    return path

@@ -40,7 +40,7 @@ from mscap.errors import LinearSolveError
 from mscap.fem.elastic.contact import Ball
 from mscap.fem.elastic.problem import ElasticError, ElasticProblem, assemble, total_energy
 from mscap.fem.petsc import Operator
-from mscap.fem.profile import timed
+from mscap.fem.profile import phase, timed
 from mscap.scene.settings import HESSIAN_MODES, ElasticSettings
 
 __all__ = ["Loading", "NewtonSettings", "ElasticState", "solve_pose", "HESSIAN_MODES"]
@@ -309,6 +309,7 @@ class _Pose:
         return x + step
 
 
+@phase("Newton")
 def solve_pose(problem: ElasticProblem, loading: Loading, settings: NewtonSettings | None = None,
                operator: Operator | None = None, keep_factorisation: bool = False,
                progress: Callable[[str], None] | None = None) -> ElasticState:
