@@ -32,11 +32,26 @@ mscap_environment() {
         echo "$name: no venv at $MSCAP_VENV and no mscap on PATH (set MSCAP_VENV, or run make)" >&2
         exit 1
     fi
+    mscap_forget_mpi_parent
     # One thread per rank: each worker runs its own PETSc on COMM_SELF.
     export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
     if [[ "$(id -u)" == 0 ]]; then   # containers: OpenMPI refuses root otherwise
         export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
     fi
+}
+
+# A process that has called MPI_Init as a singleton (python with mpi4py imported, e.g. a
+# notebook or a test runner that submits the job) puts its PMIx server's address and
+# OpenMPI's singleton settings into its environment; `sbatch --export=ALL` carries them into
+# the job, where mpirun and the ranks then fail in orte_init ("getting local rank failed").
+# They never belong to this job: drop them (the user's own OMPI_MCA_* settings stay).
+mscap_forget_mpi_parent() {
+    local name
+    for name in $(compgen -e); do
+        case "$name" in
+            PMIX_*|ORTE_*|OMPI_MCA_ess|OMPI_MCA_pmix|OMPI_MCA_orte_*|OMPI_APP_CTX_NUM_PROCS) unset "$name" ;;
+        esac
+    done
 }
 
 # Can srun start an MPI program in this job? One task, one MPI_Init. Prints the reason when not.

@@ -31,6 +31,11 @@ for a in "$@"; do
 done
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+# Run from a process that has called MPI_Init (a test runner with mpi4py imported), the
+# environment holds that process's PMIx/OpenMPI singleton settings: the jobs must not see them.
+# shellcheck source=common.sh
+source "$REPO/slurm/common.sh"
+mscap_forget_mpi_parent
 VENV="${MSCAP_VENV:-$REPO/.venv}"
 SCENE="$REPO/jobs/quick.toml"
 
@@ -66,10 +71,15 @@ fi
 
 dir="$(mktemp -d /tmp/mscap-slurm.XXXXXX)"
 host="$(hostname -s)"
-cpus="$(nproc)"
+cpus="$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)"   # nproc obeys OMP_NUM_THREADS
 pids=()
 cleanup() {
     local status=$?
+    # Jobs first: a job left running outlives the daemons (its slurmstepd and ranks go on).
+    if [[ -n "${SLURM_CONF:-}" ]] && command -v squeue >/dev/null 2>&1; then
+        scancel --full --quiet $(squeue -h -o %i 2>/dev/null) 2>/dev/null || true
+        for _ in $(seq 60); do [[ -z "$(squeue -h -o %i 2>/dev/null)" ]] && break; sleep 0.5; done
+    fi
     for pid in ${pids[@]+"${pids[@]}"}; do kill -TERM "$pid" 2>/dev/null || true; done
     for pid in ${pids[@]+"${pids[@]}"}; do
         for _ in $(seq 50); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
@@ -212,9 +222,9 @@ log="$res/timelimit-$tl.out"
 tl_state="$(state "$tl")"
 [[ "$tl_state" == COMPLETED || "$tl_state" == TIMEOUT ]] \
     || fail "time-limited job $tl ended $tl_state; log: $(tail -n5 "$log")"
-grep -q '^stopped: ' "$log" || fail "time-limited job $tl logged no 'stopped' line: $(tail -n5 "$log")"
+grep -q 'stopped: the finished runs are stored' "$log" || fail "time-limited job $tl logged no 'stopped' line: $(tail -n5 "$log")"
 n=$(stored "$res/timelimit.h5")
 (( n >= 1 && n < 24 )) || fail "time-limited job $tl stored $n runs (expected 1 to 23)"
 say "4. time limit: job $tl $tl_state (ExitCode $(exit_code "$tl")), $n of 24 runs stored; its log:"
-grep -E '^(mscap_run: stop|stopped: |mscap_run: exit)' "$log" | sed 's/^/       /'
+grep -E '^mscap_run: (stop|exit)|stopped: ' "$log" | sed 's/^/       /'
 say "passed"

@@ -25,6 +25,9 @@ def add_parser(sub) -> None:
     p.add_argument("--max-iterations", type=int, help="L-BFGS iterations per level (default: the scene's)")
     p.add_argument("--force", action="store_true", help="start the file over even if it holds another scene")
     p.add_argument("--retry-failed", action="store_true", help="run the starts stored as failed again")
+    p.add_argument("--heartbeat", type=float, default=20.0, metavar="SECONDS",
+                   help="while starts run, a status line of every busy worker (run, step, metric, "
+                        "elapsed) after this many seconds without a progress line; 0: none (default 20)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(run=run)
 
@@ -58,10 +61,11 @@ def run(args) -> int:
             handler.setFormatter(logging.Formatter(f"[rank {rank}] %(levelname)s %(name)s: %(message)s"))
     say = progress_printer(args.quiet or rank > 0)
     summary = run_multistart(scene, args.output, comm, force=args.force, retry_failed=args.retry_failed,
-                             select_configs=keep, max_iterations=args.max_iterations, progress=say)
+                             select_configs=keep, max_iterations=args.max_iterations, progress=say,
+                             heartbeat_s=args.heartbeat)
     if rank == 0 and not args.quiet:
         print(f"{args.output}: {summary['runs_done']} runs this time ({summary['runs_failed']} failed)"
-              + ("; stopped early" if summary["stopped"] else ""))
+              + ("; stopped early" if summary["stopped"] else ""), flush=True)
         if summary.get("choice"):
             print(summary["choice"])
     return 0

@@ -10,8 +10,17 @@ pickled Python objects. SIGTERM (what
 SLURM sends at the time limit), SIGUSR1 (passed on by ``mpirun``) and Ctrl-C set
 :class:`Stop`, which makes the master hand out nothing more; workers ignore both signals.
 
+A stop is graceful first: the master answers a worker's next question with "abandon"
+(the worker drops its task, which is not recorded and runs again on resume), records the
+results that still arrive, and lets every worker go; all ranks then end normally, so
+``srun`` and ``mpirun`` exit 0. Workers still busy after :data:`STOP_GRACE_S` (a task
+that asks no questions, e.g. a finer-mesh check) are aborted with the job.
+
+While waiting, the master calls ``tick(busy)`` (``{worker: (task, since)}``) so a service
+can report on its busy workers (:class:`mscap.service.heartbeat.Heartbeat`).
+
 :func:`run` is the one skeleton both services use: workers serve, the master plans its
-tasks and records results, and a stop leaves what was recorded and aborts busy workers.
+tasks and records results, and a stop leaves what was recorded.
 """
 
 from __future__ import annotations
@@ -22,10 +31,19 @@ from typing import Any, Callable, Iterable, TypeVar
 
 Result = TypeVar("Result")
 
-__all__ = ["TAGS", "STOP_SIGNALS", "Stop", "ignore_stop_signals", "farm", "serve", "ask_master", "release", "run"]
+__all__ = ["TAGS", "STOP_SIGNALS", "STOP_GRACE_S", "Stop", "Abandoned", "ignore_stop_signals", "farm", "serve",
+           "ask_master", "release", "run"]
 
 #: Message tags between master and workers, in one place.
-TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4, "ask": 5, "answer": 6}
+TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4, "ask": 5, "answer": 6, "abandon": 7}
+
+#: After a stop, how long the master waits for busy workers to reach a question (and drop
+#: their task) or to finish it, before the job is aborted with them.
+STOP_GRACE_S = 60.0
+
+
+class Abandoned(Exception):
+    """Raised by a worker's ``ask`` when the master is stopping: the task is dropped."""
 
 
 #: The signals that ask the master to stop: SIGTERM (SLURM's time limit, ``scancel``) and
@@ -58,32 +76,47 @@ def ignore_stop_signals() -> None:
 
 
 def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop,
-         answer: Callable[[Any], Any] | None = None) -> None:
+         answer: Callable[[Any], Any] | None = None, tick: Callable[[dict], None] | None = None,
+         grace_s: float = STOP_GRACE_S) -> int:
     """Master side: every task of ``todo`` to a worker, ``record(result)`` for each
-    result, ``answer(question)`` sent back to a worker that asks; returns when all
-    workers are stopped (or at once when ``stop`` is set)."""
+    result, ``answer(question)`` sent back to a worker that asks, ``tick(busy)`` while
+    waiting. Returns when all workers are stopped, or once ``stop`` has been set for
+    ``grace_s`` seconds; the number of workers then still busy."""
     from mpi4py import MPI
 
     status = MPI.Status()
     queue = list(todo)
-    busy = comm.Get_size() - 1  # every worker says "ready" first, then returns results
-    while busy:
+    busy: dict[int, tuple[Any, float]] = {}  # worker -> (task, handed out at)
+    waiting = comm.Get_size() - 1  # every worker says "ready" first, then returns results
+    stopping = None
+    while waiting:
         while not comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
             if stop.requested:
-                return
+                stopping = stopping or time.monotonic()
+                if time.monotonic() - stopping > grace_s:
+                    return len(busy)
+            if tick is not None:
+                tick(busy)
             time.sleep(0.01)
         message = comm.recv(source=status.Get_source(), tag=status.Get_tag(), status=status)
         worker = status.Get_source()
         if status.Get_tag() == TAGS["ask"]:  # a busy worker waits for the answer
-            comm.send(None if answer is None else answer(message), dest=worker, tag=TAGS["answer"])
+            if stop.requested:
+                comm.send(None, dest=worker, tag=TAGS["abandon"])
+            else:
+                comm.send(None if answer is None else answer(message), dest=worker, tag=TAGS["answer"])
             continue
         if status.Get_tag() == TAGS["result"]:
-            record(message)
+            busy.pop(worker, None)
+            if message is not None:  # None: an abandoned task
+                record(message)
         if queue and not stop.requested:
-            comm.send(queue.pop(0), dest=worker, tag=TAGS["work"])
+            busy[worker] = (queue.pop(0), time.monotonic())
+            comm.send(busy[worker][0], dest=worker, tag=TAGS["work"])
         else:
             comm.send(None, dest=worker, tag=TAGS["stop"])
-            busy -= 1
+            waiting -= 1
+    return 0
 
 
 def serve(comm, work: Callable[[Any], Any]) -> None:
@@ -96,15 +129,26 @@ def serve(comm, work: Callable[[Any], Any]) -> None:
         task = comm.recv(source=0, tag=MPI.ANY_TAG, status=status)
         if status.Get_tag() == TAGS["stop"]:
             return
-        comm.send(work(task), dest=0, tag=TAGS["result"])
+        try:
+            result = work(task)
+        except Abandoned:
+            result = None
+        comm.send(result, dest=0, tag=TAGS["result"])
 
 
 def ask_master(comm) -> Callable[[Any], Any]:
     """Worker side: ``ask(question)`` sends a question to the master and returns its
-    answer (the master answers between the other workers' messages)."""
+    answer (the master answers between the other workers' messages), or raises
+    :class:`Abandoned` when the master is stopping."""
+    from mpi4py import MPI
+
     def ask(question):
+        status = MPI.Status()
         comm.send(question, dest=0, tag=TAGS["ask"])
-        return comm.recv(source=0, tag=TAGS["answer"])
+        answer = comm.recv(source=0, tag=MPI.ANY_TAG, status=status)
+        if status.Get_tag() == TAGS["abandon"]:
+            raise Abandoned
+        return answer
     return ask
 
 
@@ -126,32 +170,45 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
 
     Ranks > 0 serve ``make_work(ask)`` until told to stop and return ``None``; ``ask``
     puts a question to the master. Rank 0 returns ``master(execute, stop)``: the master
-    opens its files, plans its tasks and calls ``execute(tasks, record, answer)`` once,
-    which runs them here on a single rank (``ask`` is then ``answer`` itself) or farms them
-    out, calling ``record(result)`` for each result and ``answer(question)`` for each
-    question. If the master fails before ``execute`` the
-    workers are released; SIGTERM or Ctrl-C set ``stop`` (nothing more is handed out, the
-    master closes its files as usual), then rank 0 says ``stopped_message`` and aborts the
-    workers still busy (a busy start cannot be interrupted otherwise)."""
+    opens its files, plans its tasks and calls ``execute(tasks, record, answer, tick)``
+    once, which runs them here on a single rank (``ask`` is then ``answer`` itself) or
+    farms them out, calling ``record(result)`` for each result, ``answer(question)`` for
+    each question and ``tick(busy)`` while it waits. If the master fails before
+    ``execute`` the workers are released; SIGTERM, SIGUSR1 or Ctrl-C set ``stop``
+    (nothing more is handed out, busy workers drop their task at their next question, the
+    master closes its files as usual), then rank 0 says ``stopped_message``; workers still
+    busy after :data:`STOP_GRACE_S` are aborted with the job."""
     if comm.Get_rank() != 0:
         ignore_stop_signals()
         serve(comm, make_work(ask_master(comm)))
         return None
-    stop, farming = Stop(), False
+    stop, farming, left = Stop(), False, 0
 
-    def execute(tasks: Iterable, record: Callable[[Any], None], answer: Callable[[Any], Any] | None = None) -> None:
-        nonlocal farming
+    def execute(tasks: Iterable, record: Callable[[Any], None], answer: Callable[[Any], Any] | None = None,
+                tick: Callable[[dict], None] | None = None) -> None:
+        nonlocal farming, left
         farming = True
         try:
             if comm.Get_size() == 1:
-                work = make_work(answer)
+                busy = {}
+
+                def ask(question):
+                    if stop.requested:
+                        raise Abandoned
+                    reply = None if answer is None else answer(question)
+                    if tick is not None:
+                        tick(busy)
+                    return reply
+
+                work = make_work(ask)
                 for task in tasks:
                     if stop.requested:
                         break
+                    busy[0] = (task, time.monotonic())
                     record(work(task))
             else:
-                farm(comm, tasks, record, stop, answer)
-        except KeyboardInterrupt:
+                left = farm(comm, tasks, record, stop, answer, tick)
+        except (KeyboardInterrupt, Abandoned):
             stop.requested = True
 
     try:
@@ -164,6 +221,6 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
         stop.restore()
     if stop.requested:
         say(stopped_message)
-        if comm.Get_size() > 1:
+        if left:
             comm.Abort(0)
     return result

@@ -15,9 +15,12 @@ the number of ranks or the order in which runs finish — unless the scene prune
 (``[multistart] prune_first_step``, :mod:`mscap.service.pruning`): then each start asks the
 master at its rungs whether it is still among the best of its k, and a dominated one
 stops and is stored as pruned. A start that raises is stored as failed with its error
-text; the others go on. SIGTERM (what SLURM sends at the time
-limit) and Ctrl-C stop the master from handing out more work; it records what finished,
-writes the selection and aborts the workers still busy.
+text; the others go on. While starts run, the master
+prints a status line of its busy workers after :data:`~mscap.service.heartbeat.HEARTBEAT_S`
+seconds without a progress line (:mod:`mscap.service.heartbeat`). SIGTERM (what SLURM sends
+at the time limit), SIGUSR1 and Ctrl-C stop the master from handing out more work; busy
+workers drop their start at its next step (it runs again on resume), the master records
+what finished and writes the selection (:func:`mscap.service.farm.run`).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from mscap.fem.simulate import release_freed_memory
 from mscap.service.accuracy import estimate_error
 from mscap.design.readback import ReconstructionBound
 from mscap.service import farm
+from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
 from mscap.service.pruning import PruneRule, Rungs, Verdict, rung_values, score, score_kind
 from mscap.service.selection import StartConfig, configurations, repeated_starts, select
 from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
@@ -50,8 +54,11 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
               ask: Callable[[tuple], Verdict] | None = None):
     """Run one start and return its :class:`~mscap.service.store.RunRecord` (failed, with the
     error text, if anything in it raises). With a pruning rule in the scene, ``ask`` gets
-    ``(k, step, score)`` at each rung (:func:`mscap.service.pruning.score`) and answers with a
-    :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned."""
+    a :class:`~mscap.service.heartbeat.Progress` after every accepted step (the master's
+    heartbeat) and answers at each pruning rung (:func:`mscap.service.pruning.score`) with a
+    :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned. When
+    the master is stopping, ``ask`` raises :class:`~mscap.service.farm.Abandoned`, which
+    passes through: the start is not recorded and runs again on resume."""
     from mscap.design.pipeline import build_design
     from mscap.scene.sizing import with_layout
     from mscap.geometry.initial import initial_layout
@@ -66,15 +73,18 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         rule, kind, verdicts = PruneRule.from_settings(scene.multistart), score_kind(scene), []
 
         def checkpoint(row) -> bool:
-            if not rule.is_rung(row.iteration):
+            rung = rule.enabled and rule.is_rung(row.iteration)
+            verdict = ask(Progress(config.id, config.k, row.iteration, float(row.min_l1_pF),
+                                   float(score(kind, row.J, row.d, row.min_l1_pF)), rung))
+            if not rung:
                 return True
-            verdicts.append(ask((config.k, row.iteration, float(score(kind, row.J, row.d, row.min_l1_pF)))))
-            return verdicts[-1].keep
+            verdicts.append(verdict)
+            return verdict.keep
 
         handed = [design]
         del design  # optimize() holds the only reference: the first remesh frees the design
         result = optimize(handed.pop(), max_iterations=max_iterations,
-                          checkpoint=checkpoint if ask is not None and rule.enabled else None)
+                          checkpoint=checkpoint if ask is not None else None)
         record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
                                     time.perf_counter() - start, rank)
         if result.reason == "pruned":
@@ -87,6 +97,8 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         result.design.close()
         del result  # the finer mesh's check below should not add to the design's memory
         release_freed_memory()
+    except farm.Abandoned:
+        raise
     except Exception as exc:  # a failed start is a result, not a crash of the job
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
         return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
@@ -105,7 +117,8 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
 def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
                    select_configs: Callable[[StartConfig], bool] | None = None,
                    max_iterations: int | None = None,
-                   progress: Callable[[str], None] | None = None) -> dict | None:
+                   progress: Callable[[str], None] | None = None,
+                   heartbeat_s: float = HEARTBEAT_S) -> dict | None:
     """Run every start of ``scene`` not yet in the file ``path``.
 
     Parameters
@@ -121,7 +134,9 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
     max_iterations
         Override the scene's ``[optimizer] max_iterations`` (tests, quick runs).
     progress
-        Called by the master with one line per finished run.
+        Called by the master with one line per finished run, and with a status line of
+        the busy workers after ``heartbeat_s`` seconds without one (0: never;
+        :mod:`mscap.service.heartbeat`).
 
     Returns the master's summary ``{"runs_done", "runs_failed", "stopped"}`` on rank 0,
     ``None`` on workers.
@@ -134,14 +149,16 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
 
     def master(execute, stop) -> dict:
         return _master(scene, path, comm.Get_size(), force, retry_failed, select_configs, execute, stop,
-                       progress or (lambda m: None))
+                       Heartbeat(progress, heartbeat_s))
 
     return farm.run(comm, lambda ask: (lambda config: run_start(scene, config, rank, max_iterations, ask)), master,
                     "stopped: the finished runs are stored; rerun the same command to complete the rest",
                     progress or (lambda m: None))
 
 
-def _master(scene: Scene, path, size, force, retry_failed, select_configs, execute, stop, say) -> dict:
+def _master(scene: Scene, path, size, force, retry_failed, select_configs, execute, stop,
+            heartbeat: Heartbeat) -> dict:
+    say = heartbeat.say
     store = open_store(path, scene, mpi_size=size, force=force)
     done = failed = 0
     try:
@@ -178,7 +195,11 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
                 f"{total - done} left, ETA {eta:.0f} s")
 
-        execute(todo, record, lambda question: rungs.decide(*question))
+        def answer(progress: Progress) -> Verdict | None:
+            heartbeat.update(progress)
+            return rungs.decide(progress.k, progress.iteration, progress.score) if progress.rung else None
+
+        execute(todo, record, answer, heartbeat.tick)
     finally:
         selection = select(run_summaries(store), scene.multistart.plateau_tol,
                            range(scene.multistart.k_min, scene.multistart.k_max + 1))

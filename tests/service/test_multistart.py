@@ -329,3 +329,29 @@ def test_usr1_to_mpirun_stops_the_master_cleanly(scene_file, tmp_path):
     store = read_store(out)
     assert 1 <= len(finished_ids(store)) < 4
     store.close()
+
+
+@needs_mpirun
+def test_heartbeat_bounds_the_silence_while_starts_run(scene_file, tmp_path):
+    """With --heartbeat 1 no gap between stderr lines exceeds the interval by much while
+    starts run, and the status lines name the busy workers' runs, steps and metrics."""
+    import re
+    import time
+
+    out = tmp_path / "heartbeat.h5"
+    command = ["mpirun", "-n", "3", "--oversubscribe", MSCAP, "run", str(scene_file), "-o", str(out),
+               "--max-iterations", "4", "--heartbeat", "1"]
+    job = subprocess.Popen(command, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stamps, lines = [], []
+    for line in job.stderr:
+        stamps.append(time.monotonic())
+        lines.append(line.rstrip())
+    job.wait(timeout=120)
+    assert job.returncode == 0
+    first = next(i for i, ln in enumerate(lines) if "to do on" in ln)
+    last = max(i for i, ln in enumerate(lines) if ln.startswith("[4/4]"))
+    gaps = [b - a for a, b in zip(stamps[first:last], stamps[first + 1:last + 1])]
+    assert max(gaps) < 1 + 1.5, (max(gaps), lines)
+    beats = [ln for ln in lines if ln.startswith("... ")]
+    assert beats
+    assert any(re.search(r"rank [12] k\d_s\d{4}_(lloyd|random): step \d+, [0-9.]+ pF, \d+ s", ln) for ln in beats)

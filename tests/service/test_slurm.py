@@ -222,6 +222,23 @@ def test_run_sets_one_thread_and_activates_venv(sandbox):
     assert (sandbox.tmp / "calls.log.venv").read_text().split() == ["1", str(venv)]
 
 
+def test_run_drops_an_mpi_singletons_settings_from_the_submitting_process(sandbox):
+    """A job submitted from a process that called MPI_Init (python with mpi4py imported)
+    inherits, through --export=ALL, that process's PMIx server address and OpenMPI singleton
+    settings (measured: the real self-test then failed in orte_init, "getting local rank
+    failed"). The launcher must not see them; the user's own OpenMPI settings stay."""
+    sandbox.remove("mpirun")
+    sandbox.add("mpirun", LOGGER + 'env | grep -E "^(PMIX|OMPI|ORTE)_" | sort > "$STANDIN_LOG.env"\n')
+    singleton = {"PMIX_SERVER_URI2": "1356070912.0;tcp4://127.0.0.1:40179", "PMIX_RANK": "0",
+                 "OMPI_MCA_ess": "singleton", "OMPI_MCA_pmix": "^s1,s2,cray,isolated",
+                 "OMPI_MCA_orte_launch": "1", "OMPI_APP_CTX_NUM_PROCS": "1", "ORTE_SCHIZO_DETECTION": "ORTE"}
+    sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", LAUNCHER="mpirun",
+                OMPI_MCA_btl="self,vader", **singleton)
+    seen = (sandbox.tmp / "calls.log.env").read_text().split()
+    assert "OMPI_MCA_btl=self,vader" in seen
+    assert not [v for v in seen if v.split("=")[0] in singleton]
+
+
 def test_run_fails_without_mscap(sandbox):
     sandbox.remove("mscap")
     proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", check=False)

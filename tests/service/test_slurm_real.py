@@ -20,7 +20,9 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_shipped_scripts_on_a_real_slurm(capsys):
     require = os.environ.get("MSCAP_SLURM_SELFTEST") == "require"
     command = [str(ROOT / "slurm" / "selftest.sh")] + (["--require"] if require else [])
-    proc = subprocess.run(command, capture_output=True, text=True, timeout=900)
+    # os.environ, not this process's C environment: once a test has imported mpi4py, OpenMPI's
+    # singleton has put its PMIx server's address there, which must not reach the jobs.
+    proc = subprocess.run(command, capture_output=True, text=True, timeout=900, env=dict(os.environ))
     with capsys.disabled():
         print("\n" + proc.stdout + proc.stderr, end="")
     if proc.returncode == 0 and "selftest: skipped:" in proc.stdout:
