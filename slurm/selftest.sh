@@ -5,8 +5,8 @@
 #   slurm/selftest.sh --require  fail instead of skipping (.ci/run)
 #   slurm/selftest.sh --keep     keep the cluster's directory (config, logs, results)
 #
-# Needs root on Debian (apt-get installs slurmctld, slurmd, slurm-client and munge when
-# missing) and no SLURM controller already running here (a cluster's login node keeps its
+# Needs root on Debian (apt-get installs slurmctld, slurmd, slurm-client, munge and
+# libpmix-dev, for srun --mpi=pmix, when missing) and no SLURM controller already running here (a cluster's login node keeps its
 # own SLURM untouched: the test skips). It writes a slurm.conf for this host (all CPUs, one
 # partition, proctrack/cgroup) into a temporary directory, starts munged (on its own
 # socket), slurmctld and slurmd, and stops them by PID at the end, whatever happens.
@@ -15,7 +15,8 @@
 #   2. a job array with its dependent merge (slurm/submit_array.sh) merges every part;
 #   3. `scancel` stops a job, and resubmitting the same command completes it (resume);
 #   4. a job that reaches its --signal=B:TERM warning before the time limit stops cleanly:
-#      finished runs stored, "stopped" logged, state COMPLETED (exit 0) or TIMEOUT.
+#      finished runs stored, "stopped" logged, state COMPLETED (exit 0) or TIMEOUT; once with
+#      mpirun inside the allocation, once with srun --mpi=pmix where srun has PMIx.
 # About 3 minutes on 2 cores.
 set -euo pipefail
 
@@ -57,7 +58,7 @@ if pgrep -x slurmctld >/dev/null 2>&1; then
     skip "a slurmctld already runs on this machine; the self-test builds its own cluster only where there is none"
 fi
 
-packages=(slurmctld slurmd slurm-client munge)
+packages=(slurmctld slurmd slurm-client munge libpmix-dev)   # libpmix-dev: srun --mpi=pmix
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}\n' "$p" 2>/dev/null | grep -q '^install ok installed' || missing+=("$p")
@@ -168,10 +169,21 @@ PY
 # Short runs of the default scene; -O puts the master and both workers on this node's CPUs.
 short="--max-iterations 2"
 
-# 4. The time limit (first: it runs beside the others). SLURM sends the warning up to 60 s
-#    earlier than asked, so 90 s before a 3-minute limit comes 30 to 90 s into the job.
-tl=$(sbatch --parsable --time=00:03:00 --signal=B:TERM@90 --ntasks=3 -O -o "$res/timelimit-%j.out" \
-    --export=ALL,SCENE="$SCENE",OUT="$res/timelimit.h5",MSCAP_ARGS="--starts-per-k 8" slurm/mscap_run.sbatch)
+# 4. The time limit (first: it runs beside the others), with mpirun inside the allocation and,
+#    where srun can start OpenMPI (PMIx), with srun: the two stop routes of slurm/common.sh.
+#    SLURM sends the warning up to 60 s earlier than asked, so 90 s before a 3-minute limit
+#    comes 30 to 90 s into the job.
+submit_timelimit() {   # submit_timelimit LAUNCHER [SRUN_ARGS]
+    sbatch --parsable --time=00:03:00 --signal=B:TERM@90 --ntasks=3 -O -o "$res/timelimit-$1-%j.out" \
+        --export=ALL,SCENE="$SCENE",OUT="$res/timelimit-$1.h5",LAUNCHER="$1",SRUN_ARGS="${2:-}",MSCAP_ARGS="--starts-per-k 8" \
+        slurm/mscap_run.sbatch
+}
+timelimit=("mpirun $(submit_timelimit mpirun)")
+if srun --mpi=list 2>&1 | grep -q pmix; then
+    timelimit+=("srun $(submit_timelimit srun --mpi=pmix)")
+else
+    say "srun has no PMIx plugin here (libpmix-dev): the time limit is checked with mpirun only"
+fi
 
 # 1. A single job.
 one=$(sbatch --parsable --ntasks=3 -O -o "$res/single-%j.out" \
@@ -217,14 +229,18 @@ grep -q "$before runs already stored, $(( 4 - before )) to do" "$res/resume-$sec
 say "3. scancel + resubmit: job $first $(state "$first") with $before runs stored; job $second resumed the other $(( 4 - before ))"
 
 # 4, continued.
-wait_job "$tl" 400
-log="$res/timelimit-$tl.out"
-tl_state="$(state "$tl")"
-[[ "$tl_state" == COMPLETED || "$tl_state" == TIMEOUT ]] \
-    || fail "time-limited job $tl ended $tl_state; log: $(tail -n5 "$log")"
-grep -q 'stopped: the finished runs are stored' "$log" || fail "time-limited job $tl logged no 'stopped' line: $(tail -n5 "$log")"
-n=$(stored "$res/timelimit.h5")
-(( n >= 1 && n < 24 )) || fail "time-limited job $tl stored $n runs (expected 1 to 23)"
-say "4. time limit: job $tl $tl_state (ExitCode $(exit_code "$tl")), $n of 24 runs stored; its log:"
-grep -E '^mscap_run: (stop|exit)|stopped: ' "$log" | sed 's/^/       /'
+for entry in "${timelimit[@]}"; do
+    read -r how tl <<< "$entry"
+    wait_job "$tl" 400
+    log="$res/timelimit-$how-$tl.out"
+    tl_state="$(state "$tl")"
+    [[ "$tl_state" == COMPLETED || "$tl_state" == TIMEOUT ]] \
+        || fail "time-limited job $tl ($how) ended $tl_state; log: $(tail -n5 "$log")"
+    grep -q 'stopped: the finished runs are stored' "$log" \
+        || fail "time-limited job $tl ($how) logged no 'stopped' line: $(tail -n5 "$log")"
+    n=$(stored "$res/timelimit-$how.h5")
+    (( n >= 1 && n < 24 )) || fail "time-limited job $tl ($how) stored $n runs (expected 1 to 23)"
+    say "4. time limit ($how): job $tl $tl_state (ExitCode $(exit_code "$tl")), $n of 24 runs stored; its log:"
+    grep -E '^mscap_run: (stop|exit)|stopped: |CANCELLED|Killed|Terminated' "$log" | sed 's/^/       /'
+done
 say "passed"

@@ -16,6 +16,8 @@ fields, the smallest size wins).
 from __future__ import annotations
 
 import logging
+import signal
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -96,6 +98,24 @@ def _threshold(field, distance: int, near: float, far: float, start: float, stop
     return threshold
 
 
+#: Signals whose handling gmsh.initialize/finalize reset to the default (measured: a worker's
+#: ignored SIGTERM became deadly after its first mesh, so srun's TERM to a job step killed the
+#: workers that mscap/service/farm.py tells to ignore it).
+_KEPT_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGUSR1") if hasattr(signal, name))
+
+
+def _signal_dispositions() -> dict:
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {s: signal.getsignal(s) for s in _KEPT_SIGNALS}
+
+
+def _restore(dispositions: dict) -> None:
+    for s, handler in dispositions.items():
+        if handler is not None:
+            signal.signal(s, handler)
+
+
 def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSettings) -> TriMesh:
     """Mesh the sheet with the layout's outlines embedded.
 
@@ -106,6 +126,7 @@ def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSett
     """
     import gmsh  # imported here: loading gmsh costs ~0.2 s that non-meshing commands skip
 
+    kept = _signal_dispositions()
     gmsh.initialize(readConfigFiles=False, interruptible=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
@@ -176,6 +197,7 @@ def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSett
         raise MeshError(f"gmsh failed to mesh the sheet: {exc}") from exc
     finally:
         gmsh.finalize()
+        _restore(kept)
 
     triangles = np.concatenate(triangles)
     owner = np.concatenate(owner)

@@ -195,3 +195,31 @@ def test_mesh_command_reports_bad_scene(small_scene_dict, write_scene, capsys):
     assert main(["mesh", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.strip() == f"mscap: error: {path}: layers[2].thickness_mm: must be > 0, got -1.0"
+
+
+def test_meshing_keeps_the_processs_signal_handling(tmp_path):
+    """gmsh.initialize/finalize reset SIGTERM to the default; an MPI worker that ignores it
+    (mscap/service/farm.py: SLURM signals every task of a step) must survive a mesh and
+    then a SIGTERM. Run in a child process: its dispositions are its own."""
+    import os
+    import subprocess
+    import sys
+
+    path = tmp_path / "small.toml"
+    path.write_text(to_toml(SMALL_SCENE))
+    child = (
+        "import os, signal, sys\n"
+        "from mscap.mesh.layered import mesh_scene\n"
+        "from mscap.scene import load_scene\n"
+        "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+        "seen = []\n"
+        "signal.signal(signal.SIGUSR1, lambda *a: seen.append(1))\n"
+        f"mesh_scene(load_scene({str(path)!r}))\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "os.kill(os.getpid(), signal.SIGUSR1)\n"
+        "print('alive', len(seen))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=120,
+                          env=dict(os.environ))
+    assert proc.returncode == 0, proc.stderr[-500:]
+    assert proc.stdout.split() == ["alive", "1"]
