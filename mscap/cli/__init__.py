@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import os
 import sys
@@ -16,6 +17,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 
 from mscap import __version__
 from mscap.cli import calibrate, capacitance, inspect, merge, mesh, optimize, plot, readout, run, simulate
+from mscap.cli.common import DefaultsHelpFormatter
 from mscap.errors import MscapError
 
 __all__ = ["main"]
@@ -25,12 +27,14 @@ _COMMANDS = (mesh, capacitance, simulate, optimize, run, inspect, merge, plot, c
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="mscap", description="Design capacitive stretch sensors.",
+        prog="mscap", description="Design capacitive stretch sensors.", formatter_class=DefaultsHelpFormatter,
         epilog="PETSc options (-ksp_type, -log_view, ...) given after the subcommand's "
                "arguments go to PETSc; those nothing read are named in a warning at the end.")
     parser.add_argument("--version", action="version", version=f"mscap {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=functools.partial(argparse.ArgumentParser,
+                                                               formatter_class=DefaultsHelpFormatter))
     for command in _COMMANDS:
         command.add_parser(sub)
     return parser

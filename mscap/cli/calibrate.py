@@ -15,7 +15,7 @@ def add_parser(sub) -> None:
                                    "evaluation sequence) for the design and each baseline (once; cached "
                                    "beside the results file), fit an RBF map from capacitances to the "
                                    "posed object's vertices (or the pose parameters), and score the "
-                                   "sequence over noisy runs (±15 %% per capacitor and run, ±2 pF per "
+                                   "sequence over noisy runs (±15 % per capacitor and run, ±2 pF per "
                                    "pose: the scene's [calibration.noise]). Under mpirun the ranks "
                                    "share the simulations.")
     p.add_argument("scene", help="scene file with a [calibration] section")

@@ -1,10 +1,27 @@
-"""What every scene command does first: PETSc with the command line's options, the
-scene, the scene's ``[petsc]`` table; and the progress printer."""
+"""What every command shares: the help formatter; what every scene command does first
+(PETSc with the command line's options, the scene, the scene's ``[petsc]`` table); and
+the progress printer."""
 
 from __future__ import annotations
 
+import argparse
 import sys
 from typing import Callable
+
+__all__ = ["DefaultsHelpFormatter", "load_scene_for", "progress_printer"]
+
+
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """Help that ends an option's text with ``(default: VALUE)`` when it has a default
+    worth showing (not ``None``, not a flag's ``False``) and the text does not already
+    say it; unlike ``ArgumentDefaultsHelpFormatter``, no ``(default: None)``."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        worth_showing = action.option_strings and action.nargs != 0 and action.default not in (None, argparse.SUPPRESS)
+        if worth_showing and "(default" not in text:  # also catches "%(default)s"
+            text += " (default: %(default)s)"
+        return text
 
 
 def load_scene_for(args):

@@ -19,10 +19,10 @@ def add_parser(sub) -> None:
                                    "iteration on stderr.")
     p.add_argument("scene", help="scene file (jobs/*.toml)")
     p.add_argument("--k", type=int, help="number of capacitors (random and lloyd starts)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the initial layout (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the initial layout")
     p.add_argument("--init", choices=("random", "lloyd", "scene"), default="scene",
-                   help="initial layout: seeded random squares, squares at Lloyd centroids, or "
-                        "the scene's own layout (default)")
+                   help="initial layout: seeded random squares (random), squares at Lloyd centroids "
+                        "(lloyd), or the scene's own layout (scene)")
     p.add_argument("--max-iterations", type=int, help="per cascade level (default: the scene's)")
     p.add_argument("--cascade", type=int, help="control-doubling levels (default: the scene's)")
     p.add_argument("-o", "--output", metavar="DIR", required=True, help="output directory")

@@ -28,8 +28,9 @@ def add_parser(sub) -> None:
     p.add_argument("--rows", type=int, metavar="M", help="array rows (default: ceil(sqrt(k)))")
     p.add_argument("--columns", type=int, metavar="N", help="array columns (default: ceil(k / rows))")
     p.add_argument("--patterns", default="default", metavar="all|optimised|default|N",
-                   help="every pattern, the optimised set of 2 x unknowns, the default (all up to 10 "
-                        "leads, else optimised) or an optimised set of N readings")
+                   help="every pattern ('all'), the optimised set of 2 x unknowns ('optimised'), "
+                        "all patterns up to 10 leads and the optimised set beyond ('default'), or an "
+                        "optimised set of N readings")
     p.add_argument("--c-on", type=float, default=C_ON_PF, metavar="PF", help="switch ON capacitance (pF)")
     p.add_argument("--c-off", type=float, default=C_OFF_PF, metavar="PF", help="switch OFF capacitance (pF)")
     p.add_argument("--runs", type=int, default=100, help="simulated read-outs per pose")

@@ -10,7 +10,7 @@ def add_parser(sub) -> None:
                                    "rank 0 schedules and writes, the other ranks optimise. Rerunning "
                                    "on an existing file completes only the missing runs.")
     p.add_argument("scene", help="scene file (jobs/*.toml)")
-    p.add_argument("-o", "--output", default="results.h5", help="HDF5 results file (default results.h5)")
+    p.add_argument("-o", "--output", default="results.h5", help="HDF5 results file (default: %(default)s)")
     p.add_argument("--k-min", type=int, help="only starts with k >= this")
     p.add_argument("--k-max", type=int, help="only starts with k <= this")
     p.add_argument("--seeds", metavar="A:B", help="only start indices A..B-1 within each k")
@@ -27,7 +27,7 @@ def add_parser(sub) -> None:
     p.add_argument("--retry-failed", action="store_true", help="run the starts stored as failed again")
     p.add_argument("--heartbeat", type=float, default=20.0, metavar="SECONDS",
                    help="while starts run, a status line of every busy worker (run, step, metric, "
-                        "elapsed) after this many seconds without a progress line; 0: none (default 20)")
+                        "elapsed) after this many seconds without a progress line; 0: none (default: %(default)s)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(run=run)
 

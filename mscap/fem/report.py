@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
 __all__ = ["simulation_record", "simulation_text", "RestCapacitance", "rest_capacitance",
-           "rest_capacitance_record", "rest_capacitance_text"]
+           "rest_capacitance_record", "rest_capacitance_text", "maxwell_lines"]
 
 
 def _iterations(sim: Simulation) -> list[int]:
@@ -118,17 +118,38 @@ def rest_capacitance_text(scene: Scene, rest: RestCapacitance) -> str:
     caps, mesh, problem, times = rest.capacitances, rest.mesh, rest.problem, rest.times
     middle = scene.layers[2]
     areas = scene.layout.areas_mm2()
-    lines = [f"scene {scene.name} ({scene.path}): {problem.k} capacitors, P{rest.order}, "
-             f"{len(mesh.points)} vertices, {len(mesh.tets)} tets, {problem.n_dofs} dofs, solver {rest.solver}",
+    lines = [f"scene {scene.name} ({scene.path}): {problem.k} capacitors, P{rest.order}",
+             f"  {len(mesh.points)} vertices, {len(mesh.tets)} tets, {problem.n_dofs} dofs; solver {rest.solver}",
              f"  {'capacitor':>9} {'area_mm2':>10} {'C_pF':>12} {'C/(eps A/d)':>12}"]
     for j, c in enumerate(caps.capacitance_pF):
         plate = middle.material.permittivity_pF_per_mm * areas[j] / middle.thickness_mm
         lines.append(f"  {j:>9d} {areas[j]:>10.3f} {c:>12.5f} {c / plate:>12.5f}")
     if caps.maxwell_pF is not None:
-        lines.append("  Maxwell matrix (pF), plates: bottom 0..k-1, then top 0..k-1")
-        with np.printoptions(precision=4, suppress=True, linewidth=200):
-            lines += ["    " + np.array2string(row) for row in caps.maxwell_pF]
+        lines += maxwell_lines(caps.maxwell_pF)
     lines.append(f"  time: mesh {times['mesh']:.2f} s, setup {times['setup']:.2f} s, assembly+factorisation "
                  f"{times['assembly_factorisation']:.2f} s, solves {times['solves']:.2f} s, "
                  f"total {times['total']:.2f} s")
     return "\n".join(lines)
+
+
+def maxwell_lines(maxwell_pF: np.ndarray, width: int = 100) -> list[str]:
+    """The ``(2k, 2k)`` Maxwell matrix (pF) as text lines of at most ``width``
+    characters: plates labelled ``b0..`` (bottom) and ``t0..`` (top), the columns split
+    into as many blocks as the width needs, each block with every row."""
+    n = len(maxwell_pF)
+    k = n // 2
+    labels = [f"b{j}" for j in range(k)] + [f"t{j}" for j in range(k)]
+    cells = [[f"{value:.4f}" for value in row] for row in np.round(maxwell_pF, 4) + 0.0]  # + 0.0: no "-0.0000"
+    label_width = max(map(len, labels))
+    cell_width = max(len(text) for row in cells for text in row) + 2
+    indent = 4 + label_width
+    per_block = max(1, (width - indent) // cell_width)
+    lines = [f"  Maxwell matrix (pF), {n} x {n}: bottom plates b0..b{k - 1}, then top plates t0..t{k - 1}"]
+    for first in range(0, n, per_block):
+        columns = range(first, min(first + per_block, n))
+        if per_block < n:
+            lines.append(f"  columns {labels[columns[0]]}..{labels[columns[-1]]}")
+        lines.append(" " * indent + "".join(f"{labels[j]:>{cell_width}}" for j in columns))
+        lines += [f"    {labels[i]:<{label_width}}" + "".join(f"{cells[i][j]:>{cell_width}}" for j in columns)
+                  for i in range(n)]
+    return lines
