@@ -6,10 +6,11 @@
 #   slurm/selftest.sh --keep     keep the cluster's directory (config, logs, results)
 #
 # Needs root on Debian (apt-get installs slurmctld, slurmd, slurm-client, munge and
-# libpmix-dev, for srun --mpi=pmix, when missing) and no SLURM controller already running here (a cluster's login node keeps its
-# own SLURM untouched: the test skips). It writes a slurm.conf for this host (all CPUs, one
-# partition, proctrack/cgroup) into a temporary directory, starts munged (on its own
-# socket), slurmctld and slurmd, and stops them by PID at the end, whatever happens.
+# libpmix-dev, for srun --mpi=pmix, when missing) and no SLURM controller already running
+# here (a cluster's login node keeps its own SLURM untouched: the test skips). It writes a
+# slurm.conf for this host (all CPUs, one partition, proctrack/cgroup) into a temporary
+# directory, starts munged (on its own socket), slurmctld and slurmd, cancels its jobs and
+# stops the daemons by PID at the end, whatever happens.
 # On jobs/quick.toml, with short runs, it checks four things a cluster user relies on:
 #   1. a single job (slurm/mscap_run.sbatch) completes and stores its runs;
 #   2. a job array with its dependent merge (slurm/submit_array.sh) merges every part;
@@ -17,7 +18,7 @@
 #   4. a job that reaches its --signal=B:TERM warning before the time limit stops cleanly:
 #      finished runs stored, "stopped" logged, state COMPLETED (exit 0) or TIMEOUT; once with
 #      mpirun inside the allocation, once with srun --mpi=pmix where srun has PMIx.
-# About 3 minutes on 2 cores.
+# About 2.5 minutes on 2 cores.
 set -euo pipefail
 
 REQUIRE=0

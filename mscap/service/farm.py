@@ -42,8 +42,10 @@ TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4, "ask": 5, "answer": 6, "a
 STOP_GRACE_S = 60.0
 
 
-class Abandoned(Exception):
-    """Raised by a worker's ``ask`` when the master is stopping: the task is dropped."""
+class Abandoned(BaseException):
+    """Raised by a worker's ``ask`` when the master is stopping: the task is dropped. Like
+    ``KeyboardInterrupt`` it is a stop, not an error, so it passes the ``except Exception``
+    that stores a start's error as a failed run."""
 
 
 #: The signals that ask the master to stop: SIGTERM (SLURM's time limit, ``scancel``) and

@@ -97,8 +97,6 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         result.design.close()
         del result  # the finer mesh's check below should not add to the design's memory
         release_freed_memory()
-    except farm.Abandoned:
-        raise
     except Exception as exc:  # a failed start is a result, not a crash of the job
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
         return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
