@@ -1,8 +1,8 @@
 """Numerical stability of the elastic solver: hard materials, thin layers, large strains.
 
 Runs every pose of the scenes in ``benchmarks/scenes/`` through the forward pipeline
-(:func:`mscap.fem.simulate.simulate`, one pose at a time on one mesh per scene) and records,
-for each pose, either the converged equilibrium (Newton iterations, of them projected,
+(:func:`mscap.fem.simulate.simulate`, one pose at a time on one electrostatic mesh per
+scene) and records, for each pose, either the converged equilibrium (Newton iterations, of them projected,
 load steps, step cuts, final residual, min J, wall time, capacitances) or the
 :class:`~mscap.errors.MscapError` it stopped with. Every converged pose is checked:
 
@@ -20,7 +20,13 @@ A failing pose must fail with an error naming the pose, the load step and the re
 case 7 is meant to fail. Prints the table and writes ``docs/stability.csv``
 (docs/stability.md explains it)::
 
-    .venv/bin/python benchmarks/stability.py                    # all cases, ~4 min
+The elastic problem lives where ``mscap simulate`` puts it (each scene's ``[elastic]
+mesh``: its own coarser mesh, 5 mm edges by default) unless ``--elastic-mesh shared``
+puts it on the electrostatic mesh, which resolves every layer; ``both`` runs each case
+both ways (the rows carry an ``elastic_mesh`` column)::
+
+    .venv/bin/python benchmarks/stability.py                    # all cases, as mscap simulate
+    .venv/bin/python benchmarks/stability.py --elastic-mesh both   # and shared: docs/stability.csv
     .venv/bin/python benchmarks/stability.py --cases 1a,1b -v   # some, with progress
     .venv/bin/python benchmarks/stability.py --cases 1r,1a,1b --elastic-order 2   # P2
     .venv/bin/python benchmarks/stability.py --hessian projected   # every case, one mode
@@ -87,7 +93,7 @@ REFERENCE_P2 = {
 }
 REFERENCE_TOLERANCE = 0.05
 
-FIELDS = ("case", "scene", "pose", "kind", "outcome", "newton_iterations", "projected", "load_steps",
+FIELDS = ("case", "scene", "elastic_mesh", "pose", "kind", "outcome", "newton_iterations", "projected", "load_steps",
           "step_cuts", "residual", "tolerance", "min_J", "elastic_s", "wall_s", "C_pF", "C_over_C0",
           "P2_C_over_C0", "check", "note", "message")
 
@@ -124,7 +130,9 @@ def physical_check(scene, problem, pose, state, ratio: np.ndarray) -> tuple[list
         lam = max(pose.stretch)
         uz = float(np.abs(x[:, 2] - rest[:, 2]).max())
         mesh = problem.mesh
-        plate = np.unique(mesh.tets[mesh.capacitor_of_tet == 0])
+        # Plate 0's nodes by its 2D footprint: an own elastic mesh of one slab through the
+        # stack has no tet in a conductive layer (capacitor_of_tet is -1 everywhere).
+        plate = np.unique(mesh.tets[mesh.mesh2d.capacitor_of_triangle[mesh.triangle_of_tet] == 0])
         sx, sy = (np.ptp(x[plate, :2], axis=0) / np.ptp(rest[plate, :2], axis=0))
         notes.append(f"plate stretch {sx:.3f} x {sy:.3f}; max |u_z| {uz:.3g} mm")
         c = float(ratio.max())
@@ -165,11 +173,12 @@ def physical_check(scene, problem, pose, state, ratio: np.ndarray) -> tuple[list
         z_top = float(rest[:, 2].max())
         bottom = z_top - pose.depth_mm                       # lowest point of the ball
         low = float(x[top, 2].min()) - bottom
-        h = min(scene.mesh.edge_length_mm, pose.radius_mm)
+        mesh = problem.mesh
+        far = scene.elastic.edge_length_mm if scene.elastic.mesh == "own" else scene.mesh.edge_length_mm
+        h = min(far, pose.radius_mm)  # the far edge of the mesh the elastic problem is on
         rise = pose.radius_mm - math.sqrt(pose.radius_mm ** 2 - h ** 2)
         # The barrier acts on nodes only: between them the flat top facets cut into the
         # ball by up to their sagitta. Informational (the tets stay valid).
-        mesh = problem.mesh
         n2 = len(mesh.mesh2d.points)
         facets = mesh.mesh2d.triangles + (len(mesh.level_z_mm) - 1) * n2
         centre = np.array([*pose.center_mm, z_top + pose.radius_mm - pose.depth_mm])
@@ -199,7 +208,11 @@ def physical_check(scene, problem, pose, state, ratio: np.ndarray) -> tuple[list
 # -- running ----------------------------------------------------------------------------
 
 def run_case(case: Case, elastic_order: int | None = None, verbose: bool = False,
-             hessian: str | None = None, elastic_mesh: str = "shared") -> list[dict]:
+             hessian: str | None = None, elastic_mesh: str | None = None) -> list[dict]:
+    """Every non-free pose of ``case``, each in its own :func:`simulate` on one
+    electrostatic mesh. ``elastic_mesh``: ``None`` keeps the scene's ``[elastic] mesh``
+    (``"own"`` unless the scene says otherwise: what ``mscap simulate`` runs); ``"shared"``
+    or ``"own"`` override it."""
     from mscap.errors import MscapError
     from mscap.mesh.layered import mesh_scene
     from mscap.fem.petsc import set_scene_options
@@ -207,9 +220,8 @@ def run_case(case: Case, elastic_order: int | None = None, verbose: bool = False
     from mscap.fem.simulate import simulate
 
     scene = load_scene(SCENES / case.scene)
-    # The study resolves every layer (the stiff plates, the 10 um layers): the elastic
-    # problem on the electrostatic mesh unless --elastic-mesh own.
-    scene = dataclasses.replace(scene, elastic=dataclasses.replace(scene.elastic, mesh=elastic_mesh))
+    if elastic_mesh is not None:
+        scene = dataclasses.replace(scene, elastic=dataclasses.replace(scene.elastic, mesh=elastic_mesh))
     if hessian:
         scene = dataclasses.replace(scene, elastic=dataclasses.replace(scene.elastic, hessian=hessian))
     set_scene_options(scene.petsc_options)
@@ -223,7 +235,8 @@ def run_case(case: Case, elastic_order: int | None = None, verbose: bool = False
         if pose.kind == "free":
             continue
         row = dict.fromkeys(FIELDS, "")
-        row.update(case=case.id, scene=case.scene, pose=pose.name, kind=pose.kind, tolerance=tol)
+        row.update(case=case.id, scene=case.scene, elastic_mesh=scene.elastic.mesh, pose=pose.name, kind=pose.kind,
+                   tolerance=tol)
         start = time.perf_counter()
         try:
             sim = simulate(dataclasses.replace(scene, poses=(pose,)), mesh=mesh,
@@ -292,17 +305,18 @@ def _fmt(value, spec: str) -> str:
 
 
 def table(rows: list[dict]) -> str:
-    head = (f"{'case':<5}{'pose':<16}{'outcome':<26}{'newton':>7}{'proj':>5}{'steps':>6}{'cuts':>5}"
+    head = (f"{'case':<5}{'mesh':<7}{'pose':<16}{'outcome':<26}{'newton':>7}{'proj':>5}{'steps':>6}{'cuts':>5}"
             f"{'residual':>10}{'min J':>8}{'wall s':>8}  {'C/C0':<14}check")
     lines = [head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r['case']:<5}{r['pose']:<16}{r['outcome']:<26}{_fmt(r['newton_iterations'], 'd'):>7}"
+        lines.append(f"{r['case']:<5}{r['elastic_mesh']:<7}{r['pose']:<16}{r['outcome']:<26}"
+                     f"{_fmt(r['newton_iterations'], 'd'):>7}"
                      f"{_fmt(r['projected'], 'd'):>5}{_fmt(r['load_steps'], 'd'):>6}{_fmt(r['step_cuts'], 'd'):>5}"
                      f"{_fmt(r['residual'], '.2e'):>10}{_fmt(r['min_J'], '.3f'):>8}{_fmt(r['wall_s'], '.1f'):>8}  "
                      f"{r['C_over_C0']:<14}{r['check']}")
         for extra in (r["note"], r["message"]):
             if extra:
-                lines.append(f"{'':21}{extra}")
+                lines.append(f"{'':28}{extra}")
     return "\n".join(lines)
 
 
@@ -313,20 +327,21 @@ def nu_trend(rows: list[dict]) -> tuple[str, list[str]]:
     """C/C0 of the case-1 poses against ν, and the poses whose C/C0 drifts by more than
     :data:`DRIFT` between ν = 0.47 and 0.499. The physical answer barely depends on ν
     there (P2: < 0.4 %), so a drift flags volumetric locking of the elements."""
-    by = {(r["case"], r["pose"]): r for r in rows if r["case"] in ("1r", "1a", "1b")}
-    poses = sorted({p for _, p in by}, key=lambda p: [r["pose"] for r in rows].index(p))
+    by = {(r["case"], r["pose"], r["elastic_mesh"]): r for r in rows if r["case"] in ("1r", "1a", "1b")}
+    poses = sorted({(p, m) for _, p, m in by}, key=lambda pm: [(r["pose"], r["elastic_mesh"]) for r in rows].index(pm))
     if not poses:
         return "", []
-    lines = ["C/C0 against nu (case 1):  nu=0.47   nu=0.49  nu=0.499   drift"]
+    lines = ["C/C0 against nu (case 1):         nu=0.47   nu=0.49  nu=0.499   drift"]
     drifting = []
-    for pose in poses:
-        values = [by.get((c, pose), {}).get("C_over_C0", "") for c in ("1r", "1a", "1b")]
+    for pose, mesh in poses:
+        values = [by.get((c, pose, mesh), {}).get("C_over_C0", "") for c in ("1r", "1a", "1b")]
         numbers = [float(v.split()[0]) for v in values if v]
         drift = max(numbers) / min(numbers) - 1 if len(numbers) > 1 else 0.0
         flag = f"  > {DRIFT:.0%}: LOCKING" if drift > DRIFT else ""
         if flag:
-            drifting.append(pose)
-        lines.append(f"  {pose:<24}" + "".join(f"{v or '-':>9}" for v in values) + f"{drift:>8.1%}{flag}")
+            drifting.append(f"{pose} ({mesh})")
+        lines.append(f"  {pose + ' (' + mesh + ')':<31}" + "".join(f"{v or '-':>9}" for v in values)
+                     + f"{drift:>8.1%}{flag}")
     return "\n".join(lines), drifting
 
 
@@ -347,9 +362,11 @@ def main(argv=None) -> int:
     parser.add_argument("--elastic-order", type=int, choices=(1, 2), help="elastic element order (default: the scenes')")
     parser.add_argument("--hessian", choices=("auto", "exact", "projected"),
                         help="Hessian mode for every case (default: the scenes', auto)")
-    parser.add_argument("--elastic-mesh", choices=("shared", "own"), default="shared",
-                        help="elastic problem on the electrostatic mesh (default, as documented) or on "
-                             "the scenes' own [elastic] mesh")
+    parser.add_argument("--elastic-mesh", choices=("shared", "own", "both"),
+                        help="where the elastic problem lives; default: each scene's [elastic] mesh, what "
+                             "`mscap simulate` runs (own, at its [elastic] edge_length_mm, for every scene "
+                             "here); shared: on the electrostatic mesh (resolves every layer); both: every "
+                             "case in the default configuration, then shared")
     parser.add_argument("--csv", help=f"CSV to write (default: {CSV.relative_to(ROOT)} for a full default run, "
                         "else none)")
     parser.add_argument("-v", "--verbose", action="store_true", help="progress of every load step")
@@ -366,7 +383,7 @@ def main(argv=None) -> int:
             parser.error(f"unknown case(s) {', '.join(sorted(unknown))}")
         cases = tuple(c for c in CASES if c.id in wanted)
     out = Path(args.csv) if args.csv else (CSV if not (args.cases or args.elastic_order or args.hessian
-                                                       or args.elastic_mesh != "shared") else None)
+                                                       or args.elastic_mesh in ("shared", "own")) else None)
 
     stamp = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
     print(f"mscap stability benchmark, {stamp}, {machine()}")
@@ -374,7 +391,9 @@ def main(argv=None) -> int:
     for case in cases:
         t0 = time.perf_counter()
         print(f"case {case.id}: {case.what} ({case.scene})", flush=True)
-        case_rows = run_case(case, args.elastic_order, args.verbose, args.hessian, args.elastic_mesh)
+        case_rows = []
+        for mesh_choice in ((None, "shared") if args.elastic_mesh == "both" else (args.elastic_mesh,)):
+            case_rows += run_case(case, args.elastic_order, args.verbose, args.hessian, mesh_choice)
         rows += case_rows
         print(f"  {len(case_rows)} poses in {time.perf_counter() - t0:.1f} s", flush=True)
     total = time.perf_counter() - start

@@ -10,8 +10,8 @@ line instead of a traceback.
 from __future__ import annotations
 
 __all__ = ["MscapError", "SceneError", "GeometryError", "MeshError", "LinearSolveError", "ElasticError",
-           "AdjointError", "ElectrostaticError", "ReadoutError", "DesignError", "StoreError", "CalibrationError",
-           "ParameterError"]
+           "AdjointError", "ElectrostaticError", "ReadoutError", "DesignError", "StoreError", "StoreFullError",
+           "CalibrationError", "ParameterError"]
 
 
 class MscapError(Exception):
@@ -83,6 +83,11 @@ class DesignError(MscapError):
 
 class StoreError(MscapError):
     """A results file cannot be used: wrong scene, not an mscap file, unknown run."""
+
+
+class StoreFullError(StoreError):
+    """A results file cannot take the next write: the disk, a quota or the process's
+    file-size limit refuses the room it needs. Nothing of the file was touched."""
 
 
 class CalibrationError(MscapError):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import copy
 import json
+import math
+import re
 
 import numpy as np
 import pytest
@@ -12,27 +14,36 @@ from mscap.mesh.triangulate import TriMesh
 from mscap.service.store import HISTORY_COLUMNS, RunRecord
 
 
+def _key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
+
+
 def _value(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, str):
         return json.dumps(v)
+    if isinstance(v, float) and not math.isfinite(v):
+        return "nan" if math.isnan(v) else "inf" if v > 0 else "-inf"
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):  # a table inside an array or a value: inline
+        return "{" + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + "}"
     return repr(v)
 
 
 def to_toml(data: dict, prefix: str = "") -> str:
-    """Enough of a TOML writer for test scenes: scalars, arrays, tables, arrays of tables."""
+    """Enough of a TOML writer for test scenes: scalars (NaN and inf too), arrays, tables,
+    arrays of tables, keys that need quotes."""
     lines, nested = [], []
     for key, value in data.items():
-        full = f"{prefix}.{key}" if prefix else key
+        full = f"{prefix}.{_key(key)}" if prefix else _key(key)
         if isinstance(value, dict):
             nested.append(f"\n[{full}]\n" + to_toml(value, full))
         elif isinstance(value, list) and value and all(isinstance(x, dict) for x in value):
             nested.extend(f"\n[[{full}]]\n" + to_toml(x, full) for x in value)
         else:
-            lines.append(f"{key} = {_value(value)}")
+            lines.append(f"{_key(key)} = {_value(value)}")
     return "\n".join(lines) + "".join(nested) + "\n"
 
 

@@ -46,6 +46,7 @@ from mscap.bodies.registry import GENERATORS, generator_parameters, parameter_ki
 from mscap.errors import GeometryError
 from mscap.geometry.polygons import point_segment_distance, points_in_polygon
 from mscap.scene._toml import Table
+from mscap.scene.settings import MAX_LENGTH_MM, MIN_LENGTH_MM
 
 __all__ = [
     "GENERATORS", "register_generator", "ParameterError", "cylinder", "dome",
@@ -125,6 +126,9 @@ def _grid(width: float, height: float, corner: tuple[float, float], edge: float)
 def _read_surface(t: Table, key: str, base: Path) -> tuple[Path, Any]:
     """Read the triangle surface file named by entry ``key`` of ``t`` with meshio."""
     path = base / t.get(key, str)
+    if not path.is_file():  # not a directory, device or pipe meshio would wait on
+        raise t.error(key, f"cannot read surface file {str(path)!r}: "
+                      f"{'no such file' if not path.exists() else 'not a regular file'}")
     try:
         mesh = meshio.read(path)
     except Exception as exc:          # meshio raises many types; name the file in all
@@ -183,10 +187,10 @@ def read_objects(t: Table | None, scene_path: str) -> dict[str, GlueObject]:
             if generator not in GENERATORS:
                 raise o.error("generator", f"unknown generator {generator!r}; known: "
                               f"{', '.join(sorted(GENERATORS))}")
-            width = o.get("width_mm", float, positive=True)
-            height = o.get("height_mm", float, positive=True)
+            width = o.get("width_mm", float, positive=True, maximum=MAX_LENGTH_MM, why="10 m; the keys are in mm")
+            height = o.get("height_mm", float, positive=True, maximum=MAX_LENGTH_MM, why="10 m; the keys are in mm")
             corner = _point(o, "corner_mm", [0.0, 0.0])
-            edge = o.get("edge_length_mm", float, 1.0, positive=True)
+            edge = o.get("edge_length_mm", float, 1.0, positive=True, minimum=MIN_LENGTH_MM, why="1 µm")
             cells = math.ceil(width / edge) * math.ceil(height / edge)
             if cells > 1_000_000:
                 raise o.error("edge_length_mm", f"{edge!r} mm makes {cells} cells on a "

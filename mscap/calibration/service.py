@@ -160,13 +160,20 @@ def _work(scene: Scene, designs, poses_of):
 
 # ---------------------------------------------------------------- cache (master)
 def _open_cache(path, scene: Scene) -> h5py.File:
+    """The calibration cache at ``path``, locked for this process like a results file
+    (:mod:`mscap.service.outfile`: never through a link, never truncated while another
+    process holds it); started over when it holds another scene or pose family."""
+    from mscap.service.outfile import WriteLock, check_output_path
+    from mscap.service.store import ResultsFile
+
     physics, fam = physics_sha256(scene), settings(scene).family_sha256()
-    path = Path(path)
-    if path.exists():
-        try:
-            f = h5py.File(path, "r+")
-        except OSError as exc:
-            raise CalibrationError(f"{path}: cannot open the calibration cache ({exc})") from None
+    lock = WriteLock(check_output_path(path))
+    try:
+        f = ResultsFile(lock, "w" if lock.empty else "r+")
+    except OSError as exc:
+        lock.close()
+        raise CalibrationError(f"{path}: cannot open the calibration cache ({exc})") from None
+    if not lock.empty:
         if f.attrs.get("format") != FORMAT:
             f.close()
             raise CalibrationError(f"{path} is not an mscap calibration cache; give another --cache")
@@ -174,9 +181,9 @@ def _open_cache(path, scene: Scene) -> h5py.File:
                  or f.attrs.get("physics_sha256") != physics or f.attrs.get("family_sha256") != fam)
         if not stale:
             return f
-        f.close()
         log.warning("%s: cache of another scene or pose family; starting it over", path)
-    f = h5py.File(path, "w")
+        h5py.File.close(f)  # the file only: the lock stays held while it is truncated
+        f = ResultsFile(lock, "w")
     f.attrs.update({"format": FORMAT, "schema_version": SCHEMA_VERSION, "physics_sha256": physics,
                     "family_sha256": fam})
     f.create_group("designs")

@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+from mscap.cli.common import add_memory_option
+
 __all__ = ["add_parser", "run"]
 
 
@@ -37,6 +39,7 @@ def add_parser(sub) -> None:
                    help="divide every read-out by this pose's, read once per run ('none': raw "
                         "read-outs; default: the scene's calibration.reference)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    add_memory_option(p)
     p.set_defaults(run=run)
 
 
@@ -46,12 +49,17 @@ def run(args) -> int:
     from mscap.calibration.report import default_paths, text_report, write_outputs
     from mscap.calibration.service import CalibrationError, Candidate, evaluate, settings, simulate_family
     from mscap.cli.common import load_scene_for, progress_printer
+    from mscap.outputs import output_directory
     from mscap.service.designs import design_layouts
 
     comm = MPI.COMM_WORLD
     rank = comm.Get_rank()
     scene = load_scene_for(args)
     cal = settings(scene)
+    # Every argument before the family is simulated (minutes): a bad one costs nothing.
+    overrides = {"runs": args.runs, "seed": args.seed, "relative_shift": args.relative_shift,
+                 "additive_pF": args.additive_pF}
+    noise = replace(cal.noise, **{k: v for k, v in overrides.items() if v is not None})
     if args.reference is not None:
         reference = None if args.reference == "none" else args.reference
         if reference is not None and reference not in {p.name for p in scene.poses}:
@@ -61,13 +69,12 @@ def run(args) -> int:
         scene = replace(scene, calibration=cal)
     default_cache, default_out = default_paths(args.design)
     cache, outdir = Path(args.cache or default_cache), Path(args.output or default_out)
+    if rank == 0:
+        output_directory(outdir, "calibrate -o")
     designs = [Candidate(label, outlines) for label, outlines in design_layouts(scene, args.design, args.baseline)]
     simulate_family(scene, designs, cache, comm, progress=progress_printer(args.quiet or rank > 0))
     if rank != 0:
         return 0
-    overrides = {"runs": args.runs, "seed": args.seed, "relative_shift": args.relative_shift,
-                 "additive_pF": args.additive_pF}
-    noise = replace(cal.noise, **{k: v for k, v in overrides.items() if v is not None})
     scores = evaluate(scene, designs, cache, noise)
     write_outputs(outdir, scene, scores, noise)
     print(text_report(scene, scores, noise))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import sys
 
-from mscap.cli.common import load_scene_for
+from mscap.cli.common import add_memory_option, load_scene_for
 
 __all__ = ["add_parser", "run"]
 
@@ -23,6 +23,7 @@ def add_parser(sub) -> None:
                         "matrix of all 2k plates (2k solves instead of k, on the same factorisation)")
     p.add_argument("--export", metavar="DIR", help="write DIR/potential.vtu with φ per capacitor")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
+    add_memory_option(p)
     p.set_defaults(run=run)
 
 
@@ -30,6 +31,10 @@ def run(args) -> int:
     from mscap.fem.report import rest_capacitance, rest_capacitance_record, rest_capacitance_text
 
     scene = load_scene_for(args)
+    if args.export:
+        from mscap.outputs import output_directory
+
+        output_directory(args.export, "capacitance --export")  # before the work
     if args.maxwell:
         k = scene.layout.k
         print(f"mscap: warning: --maxwell solves {2 * k} systems (one per plate) instead of {k}: "

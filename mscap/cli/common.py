@@ -1,14 +1,16 @@
 """What every command shares: the help formatter; what every scene command does first
-(PETSc with the command line's options, the scene, the scene's ``[petsc]`` table); and
-the progress printer."""
+(PETSc with the command line's options, the scene, the scene's ``[petsc]`` table); the
+``--max-memory-gb`` option of the commands that mesh; and the progress printer."""
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 from typing import Callable
 
-__all__ = ["DefaultsHelpFormatter", "load_scene_for", "progress_printer"]
+__all__ = ["DefaultsHelpFormatter", "load_scene_for", "add_memory_option", "progress_printer"]
 
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
@@ -22,6 +24,29 @@ class DefaultsHelpFormatter(argparse.HelpFormatter):
         if worth_showing and "(default" not in text:  # also catches "%(default)s"
             text += " (default: %(default)s)"
         return text
+
+
+class _MemoryLimit(argparse.Action):
+    """Puts ``--max-memory-gb`` into ``MSCAP_MAX_MEMORY_GB``, where the size check before
+    meshing (:func:`mscap.mesh.budget.memory_limit`) reads it, in this process and in
+    every process it starts."""
+
+    def __call__(self, parser, namespace, value, option_string=None):
+        if not (math.isfinite(value) and value > 0):
+            parser.error(f"{option_string}: expected a positive number of GB, got {value!r}")
+        from mscap.mesh.budget import MEMORY_ENV
+
+        os.environ[MEMORY_ENV] = repr(value)
+        setattr(namespace, self.dest, value)
+
+
+def add_memory_option(parser: argparse.ArgumentParser) -> None:
+    """``--max-memory-gb GB``: the memory a mesh may ask for (default: the machine's
+    physical memory, :func:`mscap.mesh.budget.memory_limit`); one line in each command
+    that meshes."""
+    parser.add_argument("--max-memory-gb", type=float, action=_MemoryLimit, metavar="GB",
+                        help="refuse, before meshing, a mesh whose simulation would need more than GB "
+                             "(default: MSCAP_MAX_MEMORY_GB, else the memory this machine has)")
 
 
 def load_scene_for(args):

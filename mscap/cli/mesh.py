@@ -5,7 +5,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from pathlib import Path
+
+from mscap.cli.common import add_memory_option
 
 __all__ = ["add_parser", "run"]
 
@@ -17,6 +18,7 @@ def add_parser(sub) -> None:
     p.add_argument("scene", help="scene file (jobs/*.toml)")
     p.add_argument("-o", "--output", metavar="DIR", help="directory for mesh.vtu")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    add_memory_option(p)
     p.set_defaults(run=run)
 
 
@@ -24,18 +26,17 @@ def run(args) -> int:
     from mscap.mesh.io import write_mesh
     from mscap.mesh.layered import mesh_scene
     from mscap.mesh.quality import mesh_report
+    from mscap.outputs import output_directory, replace_file
     from mscap.scene import load_scene
 
     scene = load_scene(args.scene)
+    out = output_directory(args.output, "mesh -o") if args.output else None  # before the work
     start = time.perf_counter()
     mesh = mesh_scene(scene)
     report = mesh_report(mesh, time.perf_counter() - start)
     written = None
-    if args.output:
-        out = Path(args.output)
-        out.mkdir(parents=True, exist_ok=True)
-        written = out / "mesh.vtu"
-        write_mesh(written, mesh)
+    if out is not None:
+        written = replace_file(out / "mesh.vtu", lambda path: write_mesh(path, mesh))
     if args.json:
         print(json.dumps({"scene": scene.name, "settings": dataclasses.asdict(scene.mesh), **report.as_dict(),
                           "file": str(written) if written else None}))

@@ -3,9 +3,7 @@ the layout optimisation (paper §5.1)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from mscap.cli.common import load_scene_for, progress_printer
+from mscap.cli.common import add_memory_option, load_scene_for, progress_printer
 
 __all__ = ["add_parser", "run"]
 
@@ -28,6 +26,7 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", metavar="DIR", required=True, help="output directory")
     p.add_argument("--no-figure", action="store_true", help="skip the before/after figure")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    add_memory_option(p)
     p.set_defaults(run=run)
 
 
@@ -36,24 +35,34 @@ def run(args) -> int:
     from mscap.design.pipeline import build_design
     from mscap.design.readback import design_scene
     from mscap.geometry.initial import initial_layout
+    from mscap.outputs import output_directory, replace_file
     from mscap.scene.sizing import with_layout
     from mscap.service.designs import OPTIMIZE_FILES, write_optimize_output
 
+    from mscap.errors import DesignError
+    from mscap.scene.settings import MAX_CASCADE_LEVELS, MAX_ITERATIONS
+
+    if args.max_iterations is not None and not 0 <= args.max_iterations <= MAX_ITERATIONS:
+        raise DesignError(f"--max-iterations: must lie in 0..{MAX_ITERATIONS}, got {args.max_iterations}")
+    if args.cascade is not None and not 0 <= args.cascade <= MAX_CASCADE_LEVELS:
+        raise DesignError(f"--cascade: must lie in 0..{MAX_CASCADE_LEVELS} (each level doubles the control "
+                          f"points), got {args.cascade}")
     scene = design_scene(load_scene_for(args))  # the design poses: listed, or from the family
+    out = output_directory(args.output, "optimize -o")  # before the work
     say = progress_printer(args.quiet) or (lambda message: None)
     layout = initial_layout(scene, args.k, args.seed, args.init)
     say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(scene.poses)} design poses")
     design = build_design(with_layout(scene, layout))
     result = optimize(design, progress=say, max_iterations=args.max_iterations, cascade_levels=args.cascade)
 
-    out = Path(args.output)
     summary = write_optimize_output(out, scene, layout, result, args.seed, args.init)
     files = list(OPTIMIZE_FILES)
     if not args.no_figure:
         from mscap.viz.optimize import optimize_figure
 
-        optimize_figure(out / "layout.png", scene, layout, result.layout, result.initial.capacitance_pF,
-                        result.evaluation.capacitance_pF, summary["poses"])
+        replace_file(out / "layout.png", lambda path: optimize_figure(
+            path, scene, layout, result.layout, result.initial.capacitance_pF, result.evaluation.capacitance_pF,
+            summary["poses"]))
         files.append("layout.png")
     print(f"{scene.name}: {result.iterations} iterations ({result.reason}) in {result.time_s:.1f} s; "
           f"min pairwise L1 {result.initial.min_l1_pF:.4g} → {result.evaluation.min_l1_pF:.4g} pF"

@@ -45,18 +45,23 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from mscap.readout.array import grid_array
+    from mscap.outputs import output_directory
+    from mscap.readout.array import check_switches, grid_array
     from mscap.readout.report import choose_patterns, readout_report, text_report, write_outputs
     from mscap.scene.calibration import NoiseModel
     from mscap.scene import load_scene
     from mscap.service.designs import load_design, split_design_spec
 
+    # Every argument before any work: a bad one costs nothing.
+    check_switches(args.c_on, args.c_off)
+    noise = NoiseModel(args.noise_relative, args.noise_additive_pF, args.runs, args.seed)
+    if args.output:
+        output_directory(args.output, "readout -o")
     path = split_design_spec(args.design)[0]
     scene = load_scene(args.scene)
     design = load_design(scene, args.design, args.which)
     array = grid_array(design.capacitance_pF.shape[1], args.rows, args.columns)
     patterns, description, start = choose_patterns(array, args.patterns, args.seed)
-    noise = NoiseModel(args.noise_relative, args.noise_additive_pF, args.runs, args.seed)
     report = readout_report(design, array, patterns, description, noise, args.c_on, args.c_off, start)
     report["scene"] = scene.name
     report["design"]["file"] = str(path)

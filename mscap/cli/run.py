@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from mscap.cli.common import add_memory_option
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser("run", help="multi-start layout optimisation over MPI into one HDF5 file",
@@ -29,6 +31,7 @@ def add_parser(sub) -> None:
                    help="while starts run, a status line of every busy worker (run, step, metric, "
                         "elapsed) after this many seconds without a progress line; 0: none (default: %(default)s)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    add_memory_option(p)
     p.set_defaults(run=run)
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from mscap.cli.common import load_scene_for, progress_printer
+from mscap.cli.common import add_memory_option, load_scene_for, progress_printer
 
 __all__ = ["add_parser", "run"]
 
@@ -26,17 +26,24 @@ def add_parser(sub) -> None:
                                                    "poses_elastic.pvd) steps through the poses in ParaView")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    add_memory_option(p)
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
     from mscap.fem.report import simulation_record, simulation_text
+    from mscap.errors import SceneError
     from mscap.fem.simulate import simulate
+    from mscap.outputs import output_directory
     from mscap.scene.loader import select_poses
 
     scene = load_scene_for(args)
     if args.poses:
         scene = select_poses(scene, args.poses.split(","))
+    if not scene.poses:
+        raise SceneError(scene.path, "poses", "no [[poses]]: nothing to simulate")
+    if args.export:
+        output_directory(args.export, "simulate --export")  # before the work
     sim = simulate(scene, order=args.order, elastic_order=args.elastic_order,
                    progress=progress_printer(args.quiet))
     files = []

@@ -16,11 +16,13 @@ from typing import TYPE_CHECKING, Callable, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from mscap.errors import ElectrostaticError
 from mscap.fem import electrostatic
 from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import ElasticState, NewtonSettings, solve_pose
 from mscap.fem.elastic.problem import ElasticError, ElasticProblem, build_problem
 from mscap.fem.petsc import LinearSolver, Operator
+from mscap.mesh.budget import check_scene
 from mscap.mesh.layered import LayeredMesh, mesh_elastic, mesh_scene
 from mscap.mesh.transfer import interpolation_matrix
 
@@ -110,6 +112,8 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
         Called with one-line progress messages.
     """
     start = time.perf_counter()
+    if mesh is None:
+        check_scene(scene)  # both meshes within memory, before either is built
     mesh = mesh or mesh_scene(scene)
     meshed = time.perf_counter()
     electrostatic.check_plates(mesh)  # a bad layout fails now, not after the elastic solves
@@ -223,7 +227,10 @@ def capacitances(sim: Simulation, scene: Scene, states: Sequence[ElasticState | 
         for i, (pose, state) in enumerate(zip(scene.poses, states)):
             vertices = sim.mesh.points if state is None else sim.vertices(state.nodes)
             t1 = time.perf_counter()
-            caps = electrostatic.solve(sim.electro, vertices, solver=solver)
+            try:
+                caps = electrostatic.solve(sim.electro, vertices, solver=solver)
+            except ElectrostaticError as exc:
+                raise ElectrostaticError(f"pose {pose.name!r}: {exc}") from exc
             t2 = time.perf_counter()
             if not keep_fields:
                 caps, vertices = replace(caps, potentials=None), None

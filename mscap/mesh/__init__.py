@@ -1,1 +1,2 @@
-"""Meshes: the 2D triangulation (gmsh), the layered tets, quality, transfer between meshes, io."""
+"""Meshes: the size estimate before meshing (budget), the 2D triangulation (gmsh), the
+layered tets, quality, transfer between meshes, io."""

@@ -207,9 +207,17 @@ def extrude(mesh2d: TriMesh, thicknesses_mm, elements_per_layer: int = 1,
 
 @timed("meshing")
 def mesh_scene(scene: Scene) -> LayeredMesh:
-    """Triangulate a :class:`~mscap.scene.settings.Scene`'s sheet and layout, then extrude it."""
+    """Triangulate a :class:`~mscap.scene.settings.Scene`'s sheet and layout, then extrude it.
+
+    Raises
+    ------
+    MeshError
+        Before gmsh starts, when the mesh would not fit in memory
+        (:func:`mscap.mesh.budget.check_fits`)."""
+    from mscap.mesh.budget import check_fits, estimate_electrostatic
     from mscap.mesh.triangulate import triangulate
 
+    check_fits(estimate_electrostatic(scene), scene.path)  # before gmsh: refuses what would not fit
     mesh2d = triangulate(scene.sheet_outline_mm, scene.layout, scene.mesh)
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer)
 
@@ -245,11 +253,13 @@ def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
     even slabs (0: the levels of ``mesh``)."""
     from dataclasses import replace
 
+    from mscap.mesh.budget import check_fits, estimate_elastic
     from mscap.mesh.triangulate import triangulate
 
     settings = scene.elastic
     if settings.mesh == "shared":
         return mesh
+    check_fits(estimate_elastic(scene), scene.path)  # before gmsh
     h = settings.edge_length_mm
     outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
     # The zones under the balls refine a P1 elastic mesh only: P2 reads jobs/poking.toml's

@@ -32,7 +32,7 @@ __all__ = ["ReadoutError", "C_ON_PF", "C_OFF_PF", "MAX_ALL_LEADS", "MAX_DEFAULT_
            "MAX_ENUMERATED_CANDIDATE_LEADS", "MAX_RANDOM_CANDIDATES", "CapacitorArray", "grid_array",
            "all_patterns", "random_patterns", "MeasurementMatrix", "measurement_matrix", "check_rank", "Recovered",
            "ideal_readings", "recover", "noise_gain", "error_bound", "ReadoutErrors",
-           "simulate_readout"]
+           "simulate_readout", "check_switches"]
 
 log = logging.getLogger(__name__)
 
@@ -127,6 +127,9 @@ def grid_array(k: int, rows: int | None = None, columns: int | None = None) -> C
         rows = math.isqrt(k - 1) + 1
     if (rows is not None and rows < 1) or (columns is not None and columns < 1):
         raise ReadoutError(f"array: rows and columns must be >= 1, got rows = {rows}, columns = {columns}")
+    if (rows is not None and rows > k) or (columns is not None and columns > k):
+        raise ReadoutError(f"array: rows and columns must be <= k = {k} (a lead beyond it joins no capacitor), "
+                           f"got rows = {rows}, columns = {columns}")
     rows = rows if rows is not None else -(-k // columns)
     columns = columns if columns is not None else -(-k // rows)
     if rows * columns < k:
@@ -346,6 +349,16 @@ class ReadoutErrors:
         return np.sqrt(np.mean(self.capacitance_error_pF ** 2, axis=-1))
 
 
+def check_switches(c_on_pF: float, c_off_pF: float) -> None:
+    """The switches' parasitic capacitances must be finite and >= 0 pF (0: an ideal
+    switch). Their order is free: C_ON and C_OFF are separate unknowns whatever their
+    values (their columns n_ON and n_OFF = leads − n_ON are independent), so a switch
+    with C_OFF > C_ON reads back as well."""
+    for name, value in (("C_ON (--c-on)", c_on_pF), ("C_OFF (--c-off)", c_off_pF)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+            raise ReadoutError(f"switches: {name} must be a finite capacitance >= 0 pF, got {value!r}")
+
+
 def simulate_readout(m: MeasurementMatrix, capacitance_pF, c_on_pF: float = C_ON_PF, c_off_pF: float = C_OFF_PF,
                      noise: NoiseModel = NoiseModel()) -> ReadoutErrors:
     """Read ``capacitance_pF`` (k,) or (poses, k) ``noise.runs`` times and recover it.
@@ -358,6 +371,7 @@ def simulate_readout(m: MeasurementMatrix, capacitance_pF, c_on_pF: float = C_ON
     sensor), then reads every pose with fresh additive noise on each reading. The
     errors are against the shifted truth; C_ON and C_OFF are not shifted.
     """
+    check_switches(c_on_pF, c_off_pF)
     check_rank(m)
     capacitance = np.asarray(capacitance_pF, dtype=float)
     if capacitance.ndim not in (1, 2) or not np.isfinite(capacitance).all():

@@ -17,9 +17,14 @@ from mscap.readout.array import (MAX_DEFAULT_ALL_LEADS, MAX_ENUMERATED_CANDIDATE
                       CapacitorArray, ReadoutError, _checked_patterns, _inseparable, _rows, all_patterns,
                       measurement_matrix, random_patterns)
 
-__all__ = ["PatternChoice", "optimise_patterns", "default_patterns"]
+__all__ = ["PatternChoice", "optimise_patterns", "default_patterns", "MAX_OPTIMISED_PATTERNS"]
 
 log = logging.getLogger(__name__)
+
+#: The most readings an optimised set may have: four times every pattern of the largest
+#: array read whole by default (2**MAX_DEFAULT_ALL_LEADS); the greedy start and each
+#: exchange sweep cost readings x candidates.
+MAX_OPTIMISED_PATTERNS = 4 * 2**MAX_DEFAULT_ALL_LEADS
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,6 +117,10 @@ def optimise_patterns(array: CapacitorArray, size: int | None = None, candidates
     size = 2 * u if size is None else int(size)
     if size < u:
         raise ReadoutError(f"optimised patterns: {size} readings cannot determine {u} unknowns")
+    if size > MAX_OPTIMISED_PATTERNS:
+        raise ReadoutError(f"optimised patterns: {size} readings; at most {MAX_OPTIMISED_PATTERNS} (every exchange "
+                           f"sweep costs readings x candidates, and beyond the 2^leads distinct patterns a set "
+                           f"only repeats readings)")
     rng = np.random.default_rng(seed)
     if candidates is None:
         candidates = (all_patterns(array) if array.n_leads <= MAX_ENUMERATED_CANDIDATE_LEADS

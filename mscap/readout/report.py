@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 
 from mscap.readout.array import (MAX_DEFAULT_ALL_LEADS, ReadoutError, all_patterns, check_rank, error_bound,
                                  measurement_matrix, noise_gain, simulate_readout)
+from mscap.outputs import output_directory, replace_file
 from mscap.readout.patterns import optimise_patterns
 from mscap.scene.calibration import NoiseModel
 
@@ -33,7 +35,7 @@ def choose_patterns(array, spec: str, seed: int = 0) -> tuple[np.ndarray, str, f
         return all_patterns(array), "all", None
     if spec in ("optimised", "optimized"):
         size = None
-    elif spec.isdigit():
+    elif re.fullmatch(r"[0-9]+", spec):
         size = int(spec)
     else:
         raise ReadoutError(f"--patterns: expected all, optimised, default or a number of readings, got {spec!r}")
@@ -138,15 +140,17 @@ def text_report(report: dict, source: str, scene_name: str, array) -> str:
 def write_outputs(report: dict, directory) -> list[Path]:
     """``readout.csv`` (one row per pose and capacitor, ``CSV_COLUMNS``) and
     ``readout.json`` in ``directory``."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    table, document = directory / "readout.csv", directory / "readout.json"
-    with open(table, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(CSV_COLUMNS)
-        for p in report["poses"]:
-            for c in p["capacitors"]:
-                writer.writerow([p["pose"], c["capacitor"], *c["slot"]] +
-                                [f"{c[key]:.6g}" for key in CSV_COLUMNS[4:]])
-    document.write_text(json.dumps(report, indent=1) + "\n")
-    return [table, document]
+    directory = output_directory(directory, "readout -o")
+
+    def write_table(path: Path) -> None:
+        with open(path, "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(CSV_COLUMNS)
+            for p in report["poses"]:
+                for c in p["capacitors"]:
+                    writer.writerow([p["pose"], c["capacitor"], *c["slot"]] +
+                                    [f"{c[key]:.6g}" for key in CSV_COLUMNS[4:]])
+
+    text = json.dumps(report, indent=1) + "\n"
+    return [replace_file(directory / "readout.csv", write_table),
+            replace_file(directory / "readout.json", lambda path: path.write_text(text))]

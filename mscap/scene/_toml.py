@@ -54,26 +54,37 @@ class Table:
         return name in self.data
 
     def get(self, name: str, kind: type, default: Any = ..., *, positive: bool = False,
-            minimum: float | None = None) -> Any:
+            minimum: float | None = None, maximum: float | None = None, why: str = "") -> Any:
         """Read entry ``name`` as ``kind`` (bool, int, float, str, list or dict).
 
         ``default=...`` makes the key required. Integers are accepted where floats
-        are expected; floats must be finite; ``positive`` demands > 0 and
-        ``minimum`` demands >= minimum.
+        are expected; floats must be finite; ``positive`` demands > 0, ``minimum``
+        >= minimum and ``maximum`` <= maximum (``why``, the reason for the range, ends
+        the message).
         """
         self._used.add(name)
         if name not in self.data:
             if default is ...:
-                raise self.error(name, "missing (required)")
+                raise self.error(name, "missing (required)" + self._misspelt(name))
             return default
         value = self.data[name]
         value = self._convert(self.key(name), value, kind)
         if kind in (int, float):
+            reason = f" ({why})" if why else ""
             if positive and not value > 0:
-                raise self.error(name, f"must be > 0, got {value!r}")
+                raise self.error(name, f"must be > 0, got {value!r}{reason}")
             if minimum is not None and value < minimum:
-                raise self.error(name, f"must be >= {minimum:g}, got {value!r}")
+                raise self.error(name, f"must be >= {minimum:g}, got {value!r}{reason}")
+            if maximum is not None and value > maximum:
+                raise self.error(name, f"must be <= {maximum:g}, got {value!r}{reason}")
         return value
+
+    def _misspelt(self, name: str) -> str:
+        """``"; did you mean ..."`` when a key of the table nobody has read yet looks like
+        the missing ``name`` (``poisson_rato`` for ``poisson_ratio``)."""
+        unread = [key for key in self.data if key not in self._used and isinstance(key, str)]
+        close = difflib.get_close_matches(name, unread, n=1, cutoff=0.8)
+        return f"; is '{close[0]}' a misspelling of it?" if close else ""
 
     def integers(self, name: str, default: tuple) -> tuple[int, ...]:
         """Entry ``name`` as a tuple of integers: one integer or an array of them."""

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import math
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
@@ -48,9 +49,15 @@ import numpy as np
 from mscap.scene._toml import Table
 
 __all__ = ["NoiseModel", "CalibrationSettings", "read_calibration", "family_poses", "pose_parameters",
-           "TARGETS"]
+           "TARGETS", "MAX_FAMILY_POSES", "MAX_NOISE_RUNS", "MAX_SEED"]
 
 TARGETS = ("vertices", "parameters")
+#: Poses of a calibration family (training grid, or sequence), each a simulation.
+MAX_FAMILY_POSES = 10_000
+#: Noisy runs (the read-outs are held as runs x poses x capacitors).
+MAX_NOISE_RUNS = 1_000_000
+#: Seeds: what numpy's generators and the results file's integer columns take.
+MAX_SEED = 2**32 - 1
 KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "multiquadric",
            "inverse_multiquadric", "inverse_quadratic", "gaussian")
 
@@ -69,10 +76,12 @@ class NoiseModel:
 
         if not 0 <= self.relative_shift < 1:
             raise MscapError(f"noise: relative shift must be in [0, 1), got {self.relative_shift}")
-        if not self.additive_pF >= 0:
-            raise MscapError(f"noise: additive noise must be >= 0 pF, got {self.additive_pF}")
-        if self.runs < 1:
-            raise MscapError(f"noise: runs must be >= 1, got {self.runs}")
+        if not 0 <= self.additive_pF < math.inf:
+            raise MscapError(f"noise: additive noise must be finite and >= 0 pF, got {self.additive_pF}")
+        if not 1 <= self.runs <= MAX_NOISE_RUNS:
+            raise MscapError(f"noise: runs must be in 1..{MAX_NOISE_RUNS}, got {self.runs}")
+        if not 0 <= self.seed <= MAX_SEED:
+            raise MscapError(f"noise: seed must be in 0..{MAX_SEED}, got {self.seed}")
 
     @property
     def additive_std_pF(self) -> float:
@@ -188,19 +197,29 @@ def read_calibration(t: Table | None, poses: tuple) -> CalibrationSettings | Non
                                    f"it has: {', '.join(variable)}")
         spec = training_t.get(p, list)
         if (len(spec) != 3 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in spec)
-                or not isinstance(spec[2], int) or spec[2] < 1):
-            raise training_t.error(p, f"expected [start, stop, count] with an integer count >= 1, got {spec!r}")
+                or not isinstance(spec[2], int) or spec[2] < 1 or not all(math.isfinite(x) for x in spec[:2])):
+            raise training_t.error(p, f"expected [start, stop, count] of finite numbers and an integer count >= 1, "
+                                   f"got {spec!r:.80}")
+        if spec[2] > MAX_FAMILY_POSES:
+            raise training_t.error(p, f"count {spec[2]} exceeds {MAX_FAMILY_POSES} (each pose is a simulation)")
         axes.append(np.linspace(float(spec[0]), float(spec[1]), spec[2]))
     training_t.finish()
+    size = math.prod(len(axis) for axis in axes)
+    if size > MAX_FAMILY_POSES:
+        raise training_t.error("", f"a grid of {size} poses; at most {MAX_FAMILY_POSES} (each is a simulation)")
     training = np.array(list(itertools.product(*axes)), dtype=float)
 
     seq_t = t.table("sequence")
-    steps = seq_t.get("steps", int, 1, minimum=1)
+    steps = seq_t.get("steps", int, 1, minimum=1, maximum=MAX_FAMILY_POSES, why="each is a simulation")
     waypoints = []
     for p in names:
         values = seq_t.get(p, list)
-        if not values or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values):
-            raise seq_t.error(p, f"expected a list of numbers (waypoints), got {values!r}")
+        if (not values or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values)
+                or not all(math.isfinite(x) for x in values)):
+            raise seq_t.error(p, f"expected a list of finite numbers (waypoints), got {values!r:.80}")
+        if (len(values) - 1) * steps + 1 > MAX_FAMILY_POSES:
+            raise seq_t.error(p, f"{len(values)} waypoints of {steps} steps: more than {MAX_FAMILY_POSES} poses "
+                              f"(each is a simulation)")
         waypoints.append(np.array(values, dtype=float))
     extra = [key for key in seq_t.data if key not in names and key != "steps"]
     if extra:
@@ -222,10 +241,12 @@ def read_calibration(t: Table | None, poses: tuple) -> CalibrationSettings | Non
             raise noise_t.error("relative_shift", f"must be < 1, got {relative_shift!r}")
         noise = NoiseModel(relative_shift=relative_shift,
                            additive_pF=noise_t.get("additive_pF", float, 2.0, minimum=0.0),
-                           runs=noise_t.get("runs", int, 100, minimum=1),
-                           seed=noise_t.get("seed", int, 0, minimum=0))
+                           runs=noise_t.get("runs", int, 100, minimum=1, maximum=MAX_NOISE_RUNS,
+                                            why="read-outs are held as runs x poses x capacitors"),
+                           seed=noise_t.get("seed", int, 0, minimum=0, maximum=MAX_SEED))
         noise_t.finish()
     t.finish()
+    _check_positive(t, template, names, training, sequence)
     _check_family(t, template, names, training, sequence)
     return CalibrationSettings(pose=name, parameters=names, training=training, sequence=sequence,
                                in_range=in_range, target=target, reference=reference, kernel=kernel,
@@ -240,6 +261,17 @@ def _path(waypoints: np.ndarray, steps: int) -> np.ndarray:
     s = np.arange(steps) / steps
     legs = [a + s[:, None] * (b - a) for a, b in zip(waypoints[:-1], waypoints[1:])]
     return np.vstack(legs + [waypoints[-1:]])
+
+
+def _check_positive(t: Table, template, names, training, sequence) -> None:
+    """A poke's radius, depth and barrier distance stay > 0 over the family (a glue pose's
+    generators check their own parameters in :func:`_check_family`)."""
+    if template.kind == "glue":
+        return
+    for which, values in (("training", training), ("sequence", sequence)):
+        for i, name in enumerate(names):
+            if name.endswith("_mm") and not values[:, i].min() > 0:
+                raise t.error(f"{which}.{name}", f"must stay > 0 over the family, reaches {values[:, i].min():g}")
 
 
 def _check_family(t: Table, template, names, training, sequence) -> None:

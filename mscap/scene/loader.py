@@ -8,7 +8,10 @@ that builds settings itself (tests, a stored scene) calls.
 
 from __future__ import annotations
 
+import difflib
 import logging
+import math
+import re
 import tomllib
 import typing
 from dataclasses import replace
@@ -23,10 +26,13 @@ from mscap.scene import sizing
 from mscap.scene._toml import Table
 from mscap.scene.calibration import CalibrationSettings, read_calibration
 from mscap.scene.poses import read_pose
-from mscap.scene.settings import (DEFAULT_FAMILY_COUNT, DESIGN_POSES, DISTANCES, ELASTIC_MESHES, HESSIAN_MODES,
-                                  LAYER_KINDS, MAX_STARTS_PER_K, POSE_KINDS, SKINNING_METHODS, ElasticSettings,
-                                  Layer, Material, MeshSettings, MultistartSettings, OptimizerSettings, Scene,
-                                  auto_slabs)
+from mscap.scene.settings import (BALL_EDGE_RATIO, DEFAULT_FAMILY_COUNT, DESIGN_POSES, DISTANCES, ELASTIC_MESHES,
+                                  HESSIAN_MODES, LAYER_KINDS, LAYER_THICKNESS_MM, MAX_CAPACITORS, MAX_CASCADE_LEVELS,
+                                  MAX_CUTS, MAX_ITERATIONS, MAX_LENGTH_MM, MAX_NAME_LENGTH, MAX_OUTLINE_VERTICES,
+                                  MAX_RELATIVE_PERMITTIVITY, MAX_SCENE_BYTES, MAX_SEED, MAX_SLABS, MAX_STARTS_PER_K,
+                                  MIN_LENGTH_MM, PETSC_TYPES, POSE_KINDS, POSE_NAME_PATTERN, SKINNING_METHODS,
+                                  YOUNGS_MODULUS_MPA, ElasticSettings, Layer, Material, MeshSettings,
+                                  MultistartSettings, OptimizerSettings, Scene, auto_slabs)
 
 __all__ = ["load_scene", "check_optimizer", "check_multistart", "check_designable", "family_grid_counts",
            "read_multistart", "select_poses", "with_overrides"]
@@ -43,10 +49,7 @@ def load_scene(path: str | Path) -> Scene:
         On any unreadable, unknown, missing, mistyped or out-of-range entry.
     """
     path = str(path)
-    try:
-        source = Path(path).read_text()
-    except OSError as exc:
-        raise SceneError(path, "", f"cannot read scene file ({exc.strerror})") from None
+    source = _read_text(path)
     try:
         data = tomllib.loads(source)
     except tomllib.TOMLDecodeError as exc:
@@ -59,7 +62,7 @@ def load_scene(path: str | Path) -> Scene:
     materials = _read_materials(root.table("materials"))
     layers = _read_layers(root, materials)
     mesh_table = root.table("mesh", required=False) or Table(path, "mesh", {})
-    mesh = _read_mesh(mesh_table, layers)
+    mesh = _read_mesh(mesh_table, layers, sheet)
     layout, min_gap = _read_capacitors(root.table("capacitors"), sheet, mesh)
     objects = _read_objects(root, path)
     poses = _read_poses(root, objects)
@@ -71,13 +74,12 @@ def load_scene(path: str | Path) -> Scene:
     elif mesh.signal_tolerance is not None:  # hand-set sizes: the zones the signal needs all the same
         mesh = replace(mesh, zones=sizing.no_finer_than(sizing.poke_zones(poses), mesh.edge_length_outline_mm))
     elastic = _read_dataclass(root.table("elastic", required=False), ElasticSettings)
+    _check_elastic_budget(path, elastic)
     if "elements_through_thickness" not in data.get("elastic", {}):
         elastic = replace(elastic, elements_through_thickness=auto_slabs(layers))
     elastic = _elastic_for_signal(mesh, elastic, poses, data.get("elastic", {}))
     if elastic.order not in (1, 2):
         raise SceneError(path, "elastic.order", f"must be 1 or 2, got {elastic.order!r}")
-    if not elastic.tolerance > 0:
-        raise SceneError(path, "elastic.tolerance", f"must be > 0, got {elastic.tolerance!r}")
     if elastic.mesh not in ELASTIC_MESHES:
         raise SceneError(path, "elastic.mesh",
                          f"unknown value {elastic.mesh!r}; expected one of {', '.join(ELASTIC_MESHES)}")
@@ -85,6 +87,10 @@ def load_scene(path: str | Path) -> Scene:
         value = getattr(elastic, key)
         if value is not None and not value > 0:
             raise SceneError(path, f"elastic.{key}", f"must be > 0, got {value!r}")
+        if value is not None and not MIN_LENGTH_MM <= value <= MAX_LENGTH_MM:
+            raise SceneError(path, f"elastic.{key}", f"must lie in [{MIN_LENGTH_MM:g}, {MAX_LENGTH_MM:g}] mm, "
+                             f"got {value!r}")
+    _check_balls(path, poses, mesh, elastic)
     if elastic.hessian not in HESSIAN_MODES:
         raise SceneError(path, "elastic.hessian",
                          f"unknown value {elastic.hessian!r}; expected one of {', '.join(HESSIAN_MODES)}")
@@ -93,6 +99,7 @@ def load_scene(path: str | Path) -> Scene:
     check_multistart(path, multistart)
     petsc = _read_petsc(root.table("petsc", required=False))
     calibration = read_calibration(root.table("calibration", required=False), poses)
+    _check_family_balls(path, poses, mesh, elastic, calibration)
     optimizer = _objective_defaults(optimizer, data.get("optimizer", {}), calibration)
     check_optimizer(path, optimizer, calibration)
     root.finish()
@@ -103,9 +110,38 @@ def load_scene(path: str | Path) -> Scene:
                  calibration=calibration)
 
 
+def _read_text(path: str) -> str:
+    """The scene file's text (UTF-8, newlines as ``read_text`` gives them), or a
+    :class:`SceneError` saying why not."""
+    try:
+        size = Path(path).stat().st_size
+        if size > MAX_SCENE_BYTES:
+            raise SceneError(path, "", f"{size} bytes is not a scene file (they are a few kB; "
+                             f"at most {MAX_SCENE_BYTES} bytes are read)")
+        raw = Path(path).read_bytes()
+    except OSError as exc:
+        raise SceneError(path, "", f"cannot read scene file ({exc.strerror})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(path, "", f"not a text file: byte {raw[exc.start]:#04x} at offset {exc.start} "
+                         f"is not UTF-8") from None
+    return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+def _check_points(t: Table, key: str, points: np.ndarray) -> None:
+    """At most :data:`MAX_OUTLINE_VERTICES` points, every coordinate within ±``MAX_LENGTH_MM``."""
+    if len(points) > MAX_OUTLINE_VERTICES:
+        raise SceneError(t.path, key, f"{len(points)} points; at most {MAX_OUTLINE_VERTICES} are taken")
+    if len(points) and np.abs(points).max() > MAX_LENGTH_MM:
+        raise SceneError(t.path, key, f"coordinate {np.abs(points).max():g} mm is beyond ±{MAX_LENGTH_MM:g} mm "
+                         f"(10 m; the keys are in mm)")
+
+
 def _read_sheet(t: Table) -> np.ndarray:
     if t.has("outline_mm"):
         outline = np.array(t.points("outline_mm"))
+        _check_points(t, t.key("outline_mm"), outline)
         if len(outline) < 3:
             raise t.error("outline_mm", f"a polygon needs at least 3 points, got {len(outline)}")
         crossings = geometry.self_intersections(outline)
@@ -117,8 +153,8 @@ def _read_sheet(t: Table) -> np.ndarray:
     else:
         if not t.has("width_mm") and not t.has("height_mm"):
             raise t.error("outline_mm", "missing: give outline_mm, or width_mm and height_mm")
-        w = t.get("width_mm", float, positive=True)
-        h = t.get("height_mm", float, positive=True)
+        w = t.get("width_mm", float, positive=True, maximum=MAX_LENGTH_MM, why="10 m; the keys are in mm")
+        h = t.get("height_mm", float, positive=True, maximum=MAX_LENGTH_MM, why="10 m; the keys are in mm")
         outline = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
     t.finish()
     return geometry.ccw(outline)
@@ -128,13 +164,20 @@ def _read_materials(t: Table) -> dict[str, Material]:
     materials = {}
     for name in t.data:
         m = t.table(name)
+        lo, hi = YOUNGS_MODULUS_MPA
         e = m.get("youngs_modulus_MPa", float, positive=True)
+        if not lo <= e <= hi:
+            raise m.error("youngs_modulus_MPa", f"must lie in [{lo:g}, {hi:g}] MPa, got {e!r} (a gel to a rigid "
+                          f"plastic; elastomers are 0.01-10 MPa)")
         nu = m.get("poisson_ratio", float)
         if not -1.0 < nu < 0.5:
             raise m.error("poisson_ratio", f"must lie in (-1, 0.5), got {nu!r}")
         eps_r = m.get("relative_permittivity", float)
         if eps_r < 1.0:
             raise m.error("relative_permittivity", f"must be >= 1, got {eps_r!r}")
+        if eps_r > MAX_RELATIVE_PERMITTIVITY:
+            raise m.error("relative_permittivity", f"must be <= {MAX_RELATIVE_PERMITTIVITY:g}, got {eps_r!r} "
+                          f"(the highest of any ceramic)")
         m.finish()
         materials[name] = Material(name, e, nu, eps_r)
     if not materials:
@@ -163,6 +206,10 @@ def _read_layers(root: Table, materials: dict[str, Material]) -> tuple[Layer, ..
         thickness = t.get("thickness_mm", float)
         if not thickness > 0:
             raise t.error("thickness_mm", f"must be > 0, got {thickness!r}")
+        lo, hi = LAYER_THICKNESS_MM
+        if not lo <= thickness <= hi:
+            raise t.error("thickness_mm", f"must lie in [{lo:g}, {hi:g}] mm, got {thickness!r} (a layer of a "
+                          f"stretchable sheet; one slab per layer cannot bend a block)")
         fill = _material(t, "fill", materials) if kind == "conductive" else None
         layers.append(Layer(t.get("name", str), kind, thickness, _material(t, "material", materials), fill))
         t.finish()
@@ -174,7 +221,7 @@ def _read_layers(root: Table, materials: dict[str, Material]) -> tuple[Layer, ..
 SIZE_KEYS = ("edge_length_mm", "edge_length_outline_mm", "grading_distance_mm")
 
 
-def _read_mesh(t: Table, layers: tuple[Layer, ...]) -> MeshSettings:
+def _read_mesh(t: Table, layers: tuple[Layer, ...], sheet: np.ndarray) -> MeshSettings:
     """``[mesh]`` as given; without all three sizes (or with a ``tolerance``), sized from the
     tolerance later (:func:`_size_mesh`), here with placeholders the given keys replace."""
     by_hand = all(t.has(key) for key in SIZE_KEYS) and not t.has("tolerance")
@@ -184,12 +231,17 @@ def _read_mesh(t: Table, layers: tuple[Layer, ...]) -> MeshSettings:
         if not tolerance < 1:
             raise t.error("tolerance", f"a relative capacitance error, must be < 1, got {tolerance!r}")
     gap = layers[2].thickness_mm
-    far = t.get("edge_length_mm", float, ... if by_hand else sizing.FAR_EDGE_MM, positive=True)
-    near = t.get("edge_length_outline_mm", float, ... if by_hand else min(gap, far), positive=True)
+    lengths = dict(minimum=MIN_LENGTH_MM, maximum=MAX_LENGTH_MM, why="1 µm to 10 m")
+    far = t.get("edge_length_mm", float, ... if by_hand else sizing.FAR_EDGE_MM, positive=True, **lengths)
+    near = t.get("edge_length_outline_mm", float, ... if by_hand else min(gap, far), positive=True, **lengths)
     if near > far:
         raise t.error("edge_length_outline_mm", f"{near!r} exceeds edge_length_mm = {far!r}")
-    grading = t.get("grading_distance_mm", float, ... if by_hand else far / sizing.STEEP, positive=True)
-    per_layer = t.get("elements_per_layer", int, 1, minimum=1)
+    diagonal = float(np.hypot(*np.ptp(sheet, axis=0)))
+    grading = t.get("grading_distance_mm", float, ... if by_hand else far / sizing.STEEP, positive=True,
+                    maximum=max(diagonal, far / sizing.STEEP),
+                    why=f"the sheet's diagonal: beyond it the whole sheet is meshed at the outline edge")
+    per_layer = t.get("elements_per_layer", int, 1, minimum=1, maximum=MAX_SLABS,
+                      why="tet slabs per layer; studied settings use 1-2")
     order = t.get("order", int, 1)
     if order not in (1, 2):
         raise t.error("order", f"must be 1 or 2, got {order!r}")
@@ -229,7 +281,7 @@ def _elastic_for_signal(mesh: MeshSettings, elastic: ElasticSettings, poses, giv
 
 
 def _read_capacitors(t: Table, sheet: np.ndarray, mesh: MeshSettings) -> tuple[Layout, float]:
-    min_gap = t.get("min_gap_mm", float, 1.0, minimum=0.0)
+    min_gap = t.get("min_gap_mm", float, 1.0, minimum=0.0, maximum=MAX_LENGTH_MM)
     if t.has("outlines_mm") == t.has("grid"):
         raise t.error("outlines_mm", "give exactly one of 'outlines_mm' (explicit polygons) "
                       "or a [capacitors.grid] table")
@@ -237,25 +289,45 @@ def _read_capacitors(t: Table, sheet: np.ndarray, mesh: MeshSettings) -> tuple[L
         polygons = t.get("outlines_mm", list)
         if not polygons:
             raise t.error("outlines_mm", "no capacitors given")
-        layout = Layout(tuple(np.array(t.points("", p, key=f"{t.key('outlines_mm')}[{j}]"))
-                              for j, p in enumerate(polygons)))
+        if len(polygons) > MAX_CAPACITORS:
+            raise t.error("outlines_mm", f"{len(polygons)} capacitors; at most {MAX_CAPACITORS} (each costs "
+                          f"one electrostatic solve per pose)")
+        outlines = []
+        for j, p in enumerate(polygons):
+            key = f"{t.key('outlines_mm')}[{j}]"
+            if not isinstance(p, list):
+                raise SceneError(t.path, key, f"expected an outline [[x, y], ...], got {p!r:.60}")
+            outlines.append(np.array(t.points("", p, key=key)).reshape(-1, 2))
+            _check_points(t, key, outlines[-1])
+            if len(outlines[-1]) < 3:
+                raise SceneError(t.path, key, f"a polygon needs at least 3 points, got {len(outlines[-1])}")
+        layout = Layout(tuple(outlines))
         where = lambda j: t.key("outlines_mm") + ("" if j is None else f"[{j}]")  # noqa: E731
     else:
         g = t.table("grid")
         shape = g.get("shape", str)
         if shape not in SHAPES:
             raise g.error("shape", f"unknown shape {shape!r}; expected one of {', '.join(SHAPES)}")
-        rows = g.get("rows", int, minimum=1)
-        columns = g.get("columns", int, minimum=1)
-        size = g.get("size_mm", float, positive=True)
+        rows = g.get("rows", int, minimum=1, maximum=MAX_CAPACITORS)
+        columns = g.get("columns", int, minimum=1, maximum=MAX_CAPACITORS)
+        if rows * columns > MAX_CAPACITORS:
+            raise g.error("rows", f"{rows} x {columns} = {rows * columns} capacitors; at most {MAX_CAPACITORS} "
+                          f"(each costs one electrostatic solve per pose)")
+        size = g.get("size_mm", float, positive=True, maximum=MAX_LENGTH_MM)
+        if shape != "square" and math.pi * size / mesh.edge_length_outline_mm > MAX_OUTLINE_VERTICES:
+            raise g.error("size_mm", f"a {shape} of {size:g} mm with a vertex every {mesh.edge_length_outline_mm:g} mm "
+                          f"(mesh.edge_length_outline_mm) needs more than {MAX_OUTLINE_VERTICES} vertices")
         if isinstance(g.data.get("pitch_mm"), list):
             pitch = tuple(g.get("pitch_mm", list))
-            if len(pitch) != 2 or not all(isinstance(p, (int, float)) and p > 0 for p in pitch):
-                raise g.error("pitch_mm", f"expected a positive number or [px, py], got {list(pitch)!r}")
+            if len(pitch) != 2 or not all(isinstance(p, (int, float)) and not isinstance(p, bool)
+                                          and 0 < p <= MAX_LENGTH_MM for p in pitch):
+                raise g.error("pitch_mm", f"expected a number in (0, {MAX_LENGTH_MM:g}] or [px, py], "
+                              f"got {list(pitch)!r}")
         else:
-            pitch = (g.get("pitch_mm", float, positive=True),) * 2
+            pitch = (g.get("pitch_mm", float, positive=True, maximum=MAX_LENGTH_MM),) * 2
         lo, hi = sheet.min(axis=0), sheet.max(axis=0)
         center = g.points("", [g.get("center_mm", list, list(0.5 * (lo + hi)))], key=g.key("center_mm"))[0]
+        _check_points(g, g.key("center_mm"), np.array([center]))
         radius = 0.0
         if shape == "rounded_square":
             radius = g.get("corner_radius_mm", float, positive=True)
@@ -294,6 +366,13 @@ def _check_pose_geometry(path: str, poses: tuple, sheet: np.ndarray) -> None:
                 raise SceneError(path, f"poses[{i}].center_mm",
                                  f"({x:g}, {y:g}) mm lies outside the sheet "
                                  f"[{lo[0]:g}, {hi[0]:g}] × [{lo[1]:g}, {hi[1]:g}] mm")
+            diagonal = float(np.hypot(*(hi - lo)))
+            if pose.depth_mm > diagonal:
+                raise SceneError(path, f"poses[{i}].depth_mm", f"pose {pose.name!r}: {pose.depth_mm:g} mm is deeper "
+                                 f"than the sheet's diagonal ({diagonal:g} mm)")
+            if pose.radius_mm > MAX_LENGTH_MM:
+                raise SceneError(path, f"poses[{i}].radius_mm", f"pose {pose.name!r}: must be <= "
+                                 f"{MAX_LENGTH_MM:g} mm, got {pose.radius_mm!r}")
         if pose.kind == "glue":
             from mscap.bodies.glue import check_covers
 
@@ -303,10 +382,80 @@ def _check_pose_geometry(path: str, poses: tuple, sheet: np.ndarray) -> None:
                 raise SceneError(path, f"poses[{i}]", str(exc)) from None
 
 
+def _elastic_edge_under(pose_index: int, poses: tuple, mesh: MeshSettings, elastic: ElasticSettings
+                        ) -> tuple[float, str]:
+    """The largest elastic node spacing (mm) under poke ``poses[pose_index]``'s ball and the
+    key that sets it: the elastic far edge, or the refinement zone's size where the zones
+    reach the elastic mesh (the shared mesh, or an own P1 mesh); half of it for P2 (nodes
+    on the edge midpoints)."""
+    shared = elastic.mesh == "shared"
+    edge, key = (mesh.edge_length_mm, "mesh.edge_length_mm") if shared else (elastic.edge_length_mm,
+                                                                            "elastic.edge_length_mm")
+    if mesh.zones and (shared or elastic.order == 1):
+        pokes = [j for j, p in enumerate(poses) if p.kind == "poke"]
+        zone = mesh.zones[pokes.index(pose_index)]
+        if zone[3] < edge:
+            edge, key = zone[3], "the refinement zone under the ball"
+    return (edge / 2 if elastic.order == 2 else edge), key
+
+
+def _check_balls(path: str, poses: tuple, mesh: MeshSettings, elastic: ElasticSettings) -> None:
+    """Every poke's ball at least :data:`BALL_EDGE_RATIO` times the elastic node spacing
+    under it: a smaller one passes between the nodes and leaves the sheet at rest."""
+    for i, pose in enumerate(poses):
+        if pose.kind == "poke":
+            _check_ball(path, f"poses[{i}].radius_mm", pose.name, pose.radius_mm,
+                        *_elastic_edge_under(i, poses, mesh, elastic))
+
+
+def _check_ball(path: str, key: str, name: str, radius: float, spacing: float, source: str) -> None:
+    if radius < BALL_EDGE_RATIO * spacing:
+        largest = radius / BALL_EDGE_RATIO
+        raise SceneError(path, key, f"pose {name!r}: a ball of radius {radius:g} mm passes between the elastic "
+                         f"mesh's nodes, {spacing:g} mm apart under it ({source}); the radius must be at least "
+                         f"{BALL_EDGE_RATIO:g} of that: refine the elastic mesh to a spacing of at most "
+                         f"{largest:.3g} mm there, or set [mesh] signal_tolerance")
+
+
+def _check_family_balls(path: str, poses: tuple, mesh: MeshSettings, elastic: ElasticSettings,
+                        calibration: CalibrationSettings | None) -> None:
+    """The ball check of :func:`_check_balls` on the smallest radius of a calibration
+    family that varies a poke's ``radius_mm``."""
+    if calibration is None or "radius_mm" not in calibration.parameters:
+        return
+    index = next(j for j, p in enumerate(poses) if p.name == calibration.pose)
+    column = calibration.parameters.index("radius_mm")
+    smallest = float(min(calibration.training[:, column].min(), calibration.sequence[:, column].min()))
+    spacing, source = _elastic_edge_under(index, poses, mesh, elastic)
+    _check_ball(path, "calibration.training.radius_mm", f"{calibration.pose} (family)", smallest, spacing, source)
+
+
+def _check_elastic_budget(path: str, elastic: ElasticSettings) -> None:
+    """``[elastic]`` counts: at least one Newton iteration, bounded cuts and slabs."""
+    if not 1 <= elastic.max_iterations <= MAX_ITERATIONS:
+        raise SceneError(path, "elastic.max_iterations", f"must lie in 1..{MAX_ITERATIONS}, got "
+                         f"{elastic.max_iterations!r} (Newton iterations per load step; 0 could solve nothing)")
+    if elastic.max_cuts > MAX_CUTS:
+        raise SceneError(path, "elastic.max_cuts", f"must be <= {MAX_CUTS}, got {elastic.max_cuts!r} "
+                         f"(2^-{MAX_CUTS} of a load step is below double precision)")
+    if elastic.elements_through_thickness > MAX_SLABS:
+        raise SceneError(path, "elastic.elements_through_thickness", f"must be <= {MAX_SLABS}, got "
+                         f"{elastic.elements_through_thickness!r} (studied settings use 0-2)")
+    for key in ("tolerance", "step_tolerance"):
+        value = getattr(elastic, key)
+        if not 0 < value < 1:
+            raise SceneError(path, f"elastic.{key}", f"must lie in (0, 1), got {value!r} (a residual stress "
+                             f"over μ: at 1 a load step converges with the residual as large as the stiffness)")
+
+
 def _read_poses(root: Table, objects: dict) -> tuple:
     poses, seen = [], set()
     for t in root.tables("poses", required=False):
         name = t.get("name", str)
+        if len(name) > MAX_NAME_LENGTH or not re.fullmatch(POSE_NAME_PATTERN, name):
+            raise t.error("name", f"{name!r:.80} cannot name a file (mscap simulate --export writes <pose>.vtu): "
+                          f"use letters, digits, '_', '-', '+', '.' and inner spaces, starting with a letter "
+                          f"or digit, at most {MAX_NAME_LENGTH} characters")
         if name in seen:
             raise t.error("name", f"duplicate pose name {name!r}")
         seen.add(name)
@@ -355,7 +504,13 @@ def _read_petsc(t: Table | None) -> tuple[tuple[str, str], ...]:
             value = str(value)
         else:
             raise t.error(key, f"expected a string, number or boolean, got {value!r}")
-        options.append((key.lstrip("-"), value))
+        option = key.lstrip("-")
+        kind = next((kind for kind in PETSC_TYPES if option == kind or option.endswith("_" + kind)), None)
+        if kind is not None and value not in PETSC_TYPES[kind]:
+            close = difflib.get_close_matches(value, PETSC_TYPES[kind], n=1, cutoff=0.75)
+            hint = f"did you mean {close[0]!r}?" if close else f"PETSc knows {', '.join(PETSC_TYPES[kind])}"
+            raise t.error(key, f"unknown {kind.replace('_', ' ')} {value!r}; {hint}")
+        options.append((option, value))
     return tuple(options)
 
 
@@ -371,6 +526,13 @@ def check_optimizer(path: str, optimizer: OptimizerSettings, calibration: Calibr
     for key in ("control_spacing_mm", "first_step_mm", "max_step_mm", "tau_pF2", "tau_noise", "tau_mm"):
         if not getattr(optimizer, key) > 0:
             raise SceneError(path, f"optimizer.{key}", f"must be > 0, got {getattr(optimizer, key)!r}")
+    for key, lo, hi, why in (("max_iterations", 1, MAX_ITERATIONS, "L-BFGS steps per level; 0 designs nothing"),
+                             ("cascade_levels", 0, MAX_CASCADE_LEVELS, "each doubles the control points"),
+                             ("control_spacing_mm", MIN_LENGTH_MM, MAX_LENGTH_MM, "1 µm to 10 m"),
+                             ("remesh_angle_deg", 0, 60, "no triangle has a smallest angle above 60°")):
+        value = getattr(optimizer, key)
+        if not lo <= value <= hi:
+            raise SceneError(path, f"optimizer.{key}", f"must lie in [{lo:g}, {hi:g}], got {value!r} ({why})")
     mode = optimizer.design_poses
     _one_of(path, "optimizer.design_poses", mode, DESIGN_POSES)
     if mode != "listed":
@@ -408,11 +570,21 @@ def family_grid_counts(path: str, optimizer: OptimizerSettings, calibration: Cal
 def check_multistart(path: str, multistart: MultistartSettings) -> None:
     """Check ``[multistart]``: k_min ≤ k_max, starts per k within the seed scheme, a
     pruning ratio of at least 2."""
+    if multistart.k_min < 2:
+        raise SceneError(path, "multistart.k_min", f"must be >= 2, got {multistart.k_min!r} (the multi-start "
+                         f"designs arrays of capacitors; k = 0 has no layout to start from)")
     if multistart.k_min > multistart.k_max:
         raise SceneError(path, "multistart.k_min", f"k_min = {multistart.k_min} exceeds k_max = {multistart.k_max}")
-    if not 0 <= multistart.starts_per_k < MAX_STARTS_PER_K:
+    if multistart.k_max > MAX_CAPACITORS:
+        raise SceneError(path, "multistart.k_max", f"must be <= {MAX_CAPACITORS}, got {multistart.k_max!r} "
+                         f"(each capacitor costs one electrostatic solve per pose)")
+    if not 1 <= multistart.starts_per_k < MAX_STARTS_PER_K:
         raise SceneError(path, "multistart.starts_per_k",
-                         f"must be in 0..{MAX_STARTS_PER_K - 1}, got {multistart.starts_per_k!r}")
+                         f"must be in 1..{MAX_STARTS_PER_K - 1}, got {multistart.starts_per_k!r}")
+    if not 0 <= multistart.lloyd_fraction <= 1:
+        raise SceneError(path, "multistart.lloyd_fraction", f"must lie in [0, 1], got {multistart.lloyd_fraction!r}")
+    if multistart.seed > MAX_SEED:
+        raise SceneError(path, "multistart.seed", f"must be <= {MAX_SEED}, got {multistart.seed!r}")
     if multistart.prune_first_step > 0 and multistart.prune_eta < 2:
         raise SceneError(path, "multistart.prune_eta",
                          f"must be at least 2 when prune_first_step > 0 (keep the best 1/eta), "

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mscap.scene._toml import Table
+from mscap.scene.settings import MAX_LENGTH_MM, MAX_LOAD_STEPS, STRETCH_RANGE
 
 __all__ = ["FreePose", "StretchPose", "PokePose", "read_pose", "EDGES", "STRETCH_MODES", "GRIPS"]
 
@@ -135,6 +136,11 @@ def _choice(t: Table, key: str, choices, default=...) -> str:
 def _ratio(t: Table, key: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
         raise t.error(key, f"stretch ratios must be numbers > 0, got {value!r}")
+    lo, hi = STRETCH_RANGE
+    if not lo <= value <= hi:
+        raise t.error(key, f"stretch ratios must lie in [{lo:g}, {hi:g}], got {value!r} (below {lo:g} a sheet "
+                      f"between grips buckles out of plane instead of shortening; an elastomer tears before "
+                      f"{hi:g} times its length)")
     return float(value)
 
 
@@ -154,7 +160,8 @@ def _read_stretch(t: Table, name: str) -> StretchPose:
         ratio = _ratio(t, "stretch", t.get("stretch", float) if not isinstance(raw, list) else raw)
         axis = "xy".index(_choice(t, "direction", ("x", "y"), "x"))
         stretch = (ratio, 1.0) if axis == 0 else (1.0, ratio)
-    steps = t.get("load_steps", int, max(1, int(round(4 * max(abs(s - 1) for s in stretch)))), minimum=1)
+    steps = t.get("load_steps", int, max(1, int(round(4 * max(abs(s - 1) for s in stretch)))), minimum=1,
+                  maximum=MAX_LOAD_STEPS, why="each is a Newton solve")
     return StretchPose(name, mode, stretch, grips, axis, steps)
 
 
@@ -168,7 +175,8 @@ def _read_poke(t: Table, name: str) -> PokePose:
             raise t.error("held_edges", f"unknown edge {edge!r}; expected some of {', '.join(EDGES)}")
     if not edges:
         raise t.error("held_edges", "hold at least one edge (a free sheet would just move away)")
-    dhat = t.get("barrier_distance_mm", float, PokePose.barrier_distance_mm, positive=True)
+    dhat = t.get("barrier_distance_mm", float, PokePose.barrier_distance_mm, positive=True, maximum=MAX_LENGTH_MM)
     kappa = t.get("barrier_stiffness_MPa_per_mm", float, 0.0, minimum=0.0) or None
-    steps = t.get("load_steps", int, max(2, int(round(depth / 3.0))), minimum=1)
+    steps = t.get("load_steps", int, min(MAX_LOAD_STEPS, max(2, int(round(depth / 3.0)))), minimum=1,
+                  maximum=MAX_LOAD_STEPS, why="each is a Newton solve")
     return PokePose(name, center, radius, depth, tuple(dict.fromkeys(edges)), dhat, kappa, steps)

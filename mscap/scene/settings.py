@@ -19,12 +19,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from mscap.geometry.layout import Layout
-from mscap.scene.calibration import CalibrationSettings
+from mscap.scene.calibration import MAX_FAMILY_POSES, MAX_NOISE_RUNS, MAX_SEED, CalibrationSettings
 
 __all__ = [
     "EPSILON0_PF_PER_MM", "Material", "Layer", "MeshSettings", "ElasticSettings", "auto_slabs", "OptimizerSettings",
     "MultistartSettings", "Scene", "LAYER_KINDS", "POSE_KINDS", "HESSIAN_MODES", "ELASTIC_MESHES",
     "SKINNING_METHODS", "DISTANCES", "DESIGN_POSES", "DEFAULT_FAMILY_COUNT", "MAX_STARTS_PER_K",
+    "MAX_SCENE_BYTES", "MAX_LENGTH_MM", "MIN_LENGTH_MM", "LAYER_THICKNESS_MM", "YOUNGS_MODULUS_MPA",
+    "MAX_RELATIVE_PERMITTIVITY", "STRETCH_RANGE", "MAX_SLABS", "MAX_CAPACITORS", "MAX_OUTLINE_VERTICES",
+    "MAX_LOAD_STEPS", "MAX_ITERATIONS", "MAX_CUTS", "MAX_CASCADE_LEVELS", "MAX_FAMILY_POSES", "MAX_NOISE_RUNS",
+    "MAX_SEED", "BALL_EDGE_RATIO", "POSE_NAME_PATTERN", "MAX_NAME_LENGTH", "PETSC_TYPES",
 ]
 
 #: Vacuum permittivity, 8.8541878128e-12 F/m, in pF/mm.
@@ -48,6 +52,72 @@ DESIGN_POSES = ("listed", "family", "both")
 DEFAULT_FAMILY_COUNT = 2
 #: Start indices are 0..999 per k (a start's seed is scene seed · 10⁶ + k · 10³ + index).
 MAX_STARTS_PER_K = 1000
+
+# Physical ranges. A value outside is a unit mistake or asks for what the model does not
+# describe; the loader refuses it naming the key, the range and the reason given here.
+#: A scene file is a few kB; larger is not a scene (and would be read whole).
+MAX_SCENE_BYTES = 16 * 2**20
+#: Sheet sizes, coordinates and other lengths: 10 m (the keys are in mm).
+MAX_LENGTH_MM = 10_000.0
+#: Mesh edges and other lengths from below: 1 µm, thinner than any cast silicone film.
+MIN_LENGTH_MM = 1e-3
+#: A layer of a stretchable sheet, 1 µm to 10 mm: thicker is a block, which one slab per
+#: layer cannot bend.
+LAYER_THICKNESS_MM = (1e-3, 10.0)
+#: 0.1 kPa (a gel) to 10 GPa (a rigid plastic); elastomers are 0.01-10 MPa.
+YOUNGS_MODULUS_MPA = (1e-4, 1e4)
+#: εr of the stiffest ceramics (barium titanate) is some thousands.
+MAX_RELATIVE_PERMITTIVITY = 1e4
+#: Stretch ratios between grips: below 0.5 the sheet does not shorten, it buckles out of
+#: plane (λ = 1e-6 converged to a sheet arched 32 mm high), and an elastomer tears long
+#: before 10 times its length.
+STRETCH_RANGE = (0.5, 10.0)
+#: Tet slabs per layer or through the stack: studied settings use 1-2, the tet count
+#: grows linearly with it.
+MAX_SLABS = 32
+#: Capacitors in a layout (and the multi-start's k_max): each costs one electrostatic solve
+#: per pose, and the loader's pairwise layout check is quadratic in them (100 plates 7.6 s,
+#: 400 plates 131 s on a 2-core Xeon); no sensor here has more than 9.
+MAX_CAPACITORS = 100
+#: Vertices of one outline, given or generated (a disk has one every outline edge).
+MAX_OUTLINE_VERTICES = 100_000
+#: Initial load steps of a pose (each a Newton solve).
+MAX_LOAD_STEPS = 1000
+#: Newton iterations per load step, L-BFGS steps per cascade level.
+MAX_ITERATIONS = 100_000
+#: Halvings of a load step: 2⁻⁶⁰ of a step is below double precision of the load fraction.
+MAX_CUTS = 60
+#: Doublings of the control points: 2¹⁰ times the first level's.
+MAX_CASCADE_LEVELS = 10
+#: A poke's ball must be at least this times the elastic edge under it: a footprint of
+#: radius R contains a mesh node only if R exceeds about h/√3 (the centroid of an
+#: equilateral triangle of edge h); a smaller ball passes between the nodes (radius 1 mm
+#: with 5 mm edges, pushed 3 mm deep: no Newton step, exactly the rest capacitances).
+BALL_EDGE_RATIO = 0.5
+#: Pose names become file names (``mscap simulate --export DIR`` writes DIR/<pose>.vtu):
+#: letters, digits, ``_``, ``-``, ``+``, ``.`` and inner spaces, starting with a letter
+#: or digit, at most :data:`MAX_NAME_LENGTH` characters.
+POSE_NAME_PATTERN = r"[^\W_]([\w.+ -]*[\w+-])?"
+MAX_NAME_LENGTH = 100
+#: The KSP, PC and factorisation-package names PETSc 3.18 knows (``[petsc] *ksp_type``,
+#: ``*pc_type``, ``*mat_solver_type``); tests/scene/test_checks.py compares them with the
+#: installed petsc4py's.
+PETSC_TYPES = {
+    "ksp_type": ("bcgs", "bcgsl", "bicg", "cg", "cgls", "cgne", "cgs", "chebyshev", "cr", "dgmres", "fbcgs",
+                 "fbcgsr", "fcg", "fetidp", "fgmres", "gcr", "gltr", "gmres", "groppcg", "hpddm", "ibcgs", "lcd",
+                 "lgmres", "lsqr", "minres", "nash", "none", "pgmres", "pipebcgs", "pipecg", "pipecg2",
+                 "pipecgrr", "pipecr", "pipefcg", "pipefgmres", "pipegcr", "pipelcg", "pipeprcg", "preonly",
+                 "python", "qcg", "qmrcgs", "richardson", "stcg", "symmlq", "tcqmr", "tfqmr", "tsirm"),
+    "pc_type": ("asm", "bddc", "bfbt", "bjacobi", "cholesky", "chowiluviennacl", "composite", "cp", "deflation",
+                "eisenstat", "exotic", "fieldsplit", "galerkin", "gamg", "gasm", "h2opus", "hmg", "hpddm", "hypre",
+                "icc", "ilu", "jacobi", "kaczmarz", "ksp", "lmvm", "lsc", "lu", "mat", "mg", "ml", "nn", "none",
+                "parms", "patch", "pbjacobi", "pfmg", "python", "qr", "redistribute", "redundant",
+                "rowscalingviennacl", "saviennacl", "shell", "sor", "spai", "svd", "syspfmg", "telescope", "tfs",
+                "vpbjacobi"),
+    "mat_solver_type": ("bas", "cholmod", "cuda", "cusparse", "elemental", "essl", "klu", "lusol", "matlab",
+                        "mkl_cpardiso", "mkl_pardiso", "mumps", "pastix", "petsc", "scalapack", "sparseelemental",
+                        "spqr", "strumpack", "superlu", "superlu_dist", "umfpack"),
+}
 
 
 @dataclass(frozen=True)

@@ -134,24 +134,33 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
     With a design family the summary holds the read-back bound before and after."""
     from mscap.design.readback import ReconstructionBound
 
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
+    from mscap.outputs import output_directory, replace_file
+
+    out = output_directory(directory, "optimize -o")
     final = result.layout
     bound = None if scene.design_family is None else ReconstructionBound(scene.design_family, scene.optimizer.tau_mm)
     poses = [p.name for p in scene.poses]
-    (out / "outlines.json").write_text(json.dumps(
+    # Each file through replace_file: a link planted under its name is replaced, not followed.
+    replace_file(out / "outlines.json", lambda tmp: tmp.write_text(json.dumps(
         {"scene": scene.path, "min_gap_mm": scene.min_gap_mm,
-         "outlines_mm": [np.round(o, 6).tolist() for o in final.outlines]}))
-    with open(out / "capacitance.csv", "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["pose", "stage"] + [f"C{j}_pF" for j in range(final.k)])
-        for stage, e in (("initial", result.initial), ("final", result.evaluation)):
-            for name, row in zip(poses, e.capacitance_pF):
-                writer.writerow([name, stage] + [f"{c:.6f}" for c in row])
-    with open(out / "history.csv", "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(HISTORY_FIELDS)
-        writer.writerows(r.row() for r in result.history)
+         "outlines_mm": [np.round(o, 6).tolist() for o in final.outlines]})))
+
+    def write_capacitance(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(["pose", "stage"] + [f"C{j}_pF" for j in range(final.k)])
+            for stage, e in (("initial", result.initial), ("final", result.evaluation)):
+                for name, row in zip(poses, e.capacitance_pF):
+                    writer.writerow([name, stage] + [f"{c:.6f}" for c in row])
+
+    def write_history(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(HISTORY_FIELDS)
+            writer.writerows(r.row() for r in result.history)
+
+    replace_file(out / "capacitance.csv", write_capacitance)
+    replace_file(out / "history.csv", write_history)
     summary = {"scene": scene.path, "k": initial.k, "seed": seed, "init": init,
                "iterations": result.iterations, "reason": result.reason, "time_s": result.time_s,
                "initial_min_l1_pF": result.initial.min_l1_pF, "final_min_l1_pF": result.evaluation.min_l1_pF,
@@ -164,7 +173,7 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
                                   for name, row in zip(poses, result.evaluation.capacitance_pF)},
                "initial_capacitance_pF": {name: row.tolist()
                                           for name, row in zip(poses, result.initial.capacitance_pF)}}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    replace_file(out / "summary.json", lambda tmp: tmp.write_text(json.dumps(summary, indent=1)))
     return summary
 
 

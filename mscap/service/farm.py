@@ -20,11 +20,13 @@ While waiting, the master calls ``tick(busy)`` (``{worker: (task, since)}``) so 
 can report on its busy workers (:class:`mscap.service.heartbeat.Heartbeat`).
 
 :func:`run` is the one skeleton both services use: workers serve, the master plans its
-tasks and records results, and a stop leaves what was recorded.
+tasks and records results, and a stop leaves what was recorded. An exception on any rank
+ends the whole job (:func:`abort_at_exit`), never leaves the others spinning.
 """
 
 from __future__ import annotations
 
+import atexit
 import signal
 import time
 from typing import Any, Callable, Iterable, TypeVar
@@ -32,7 +34,7 @@ from typing import Any, Callable, Iterable, TypeVar
 Result = TypeVar("Result")
 
 __all__ = ["TAGS", "STOP_SIGNALS", "STOP_GRACE_S", "Stop", "Abandoned", "ignore_stop_signals", "farm", "serve",
-           "ask_master", "release", "run"]
+           "ask_master", "abort_at_exit", "release", "run"]
 
 #: Message tags between master and workers, in one place.
 TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4, "ask": 5, "answer": 6, "abandon": 7}
@@ -154,6 +156,23 @@ def ask_master(comm) -> Callable[[Any], Any]:
     return ask
 
 
+def abort_at_exit(comm, exc: BaseException) -> None:
+    """End every rank of the job once this process exits on ``exc``.
+
+    The error first takes its usual route (``mscap: error: ...`` from the command line, or
+    a traceback), so it is printed once, by the rank that failed; then, at interpreter
+    exit, ``MPI_Abort`` ends the others, which would otherwise wait forever for this rank
+    (a master that stopped listening, a worker that stopped answering). The exit status is
+    2 for an :class:`~mscap.errors.MscapError`, 130 for Ctrl-C, 1 otherwise. Nothing
+    happens on a single rank."""
+    if comm.Get_size() == 1:
+        return
+    from mscap.errors import MscapError
+
+    code = 2 if isinstance(exc, MscapError) else 130 if isinstance(exc, KeyboardInterrupt) else 1
+    atexit.register(comm.Abort, code)
+
+
 def release(comm) -> None:
     """Master side, before any task was sent: let every worker go (the master failed
     early, e.g. on a refused file; the workers must not wait forever)."""
@@ -176,13 +195,19 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
     once, which runs them here on a single rank (``ask`` is then ``answer`` itself) or
     farms them out, calling ``record(result)`` for each result, ``answer(question)`` for
     each question and ``tick(busy)`` while it waits. If the master fails before
-    ``execute`` the workers are released; SIGTERM, SIGUSR1 or Ctrl-C set ``stop``
+    ``execute`` the workers are released; if it fails later, or a worker fails, the
+    error is printed once by its rank and the whole job is aborted
+    (:func:`abort_at_exit`): no rank is left waiting. SIGTERM, SIGUSR1 or Ctrl-C set ``stop``
     (nothing more is handed out, busy workers drop their task at their next question, the
     master closes its files as usual), then rank 0 says ``stopped_message``; workers still
     busy after :data:`STOP_GRACE_S` are aborted with the job."""
     if comm.Get_rank() != 0:
         ignore_stop_signals()
-        serve(comm, make_work(ask_master(comm)))
+        try:
+            serve(comm, make_work(ask_master(comm)))
+        except BaseException as exc:
+            abort_at_exit(comm, exc)
+            raise
         return None
     stop, farming, left = Stop(), False, 0
 
@@ -215,9 +240,11 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
 
     try:
         result = master(execute, stop)
-    except BaseException:
+    except BaseException as exc:
         if not farming:
             release(comm)  # let the workers go before the error reaches main()
+        else:
+            abort_at_exit(comm, exc)  # workers may be busy or waiting: end them all
         raise
     finally:
         stop.restore()

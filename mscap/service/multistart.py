@@ -6,8 +6,11 @@ less the Lloyd starts that repeat an earlier start's layout,
 :func:`~mscap.service.selection.repeated_starts`) and hands them out one at a time; every
 other rank is a worker that runs one start (:func:`run_start`) on ``PETSc.COMM_SELF`` and
 sends back a :class:`~mscap.service.store.RunRecord`. Scheduling is dynamic — a worker
-gets the next configuration as soon as it returns one — and only the master writes,
-flushing after every run, so a killed job loses at most the runs in flight. With one
+gets the next configuration as soon as it returns one — and only the master writes:
+each run is stored and ``fsync``-ed, then ``/selection`` is rewritten, then the run is
+announced, so a killed job loses at most the runs in flight. A write the disk cannot
+take (:class:`~mscap.errors.StoreFullError`) or any other error of the master ends every
+rank of the job (:func:`mscap.service.farm.run`); the file keeps every stored run. With one
 rank (no ``mpirun``) the master runs every start itself.
 
 A start's result depends only on the scene and its (k, seed, init): never on the rank,
@@ -33,14 +36,15 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Callable
 
 from mscap.fem.simulate import release_freed_memory
-from mscap.service.accuracy import estimate_error
+from mscap.mesh.budget import check_scene
+from mscap.service.accuracy import estimate_error, finer
 from mscap.design.readback import ReconstructionBound
 from mscap.service import farm
 from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
 from mscap.service.pruning import PruneRule, Rungs, Verdict, rung_values, score, score_kind
 from mscap.service.selection import StartConfig, configurations, repeated_starts, select
-from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, write_run, \
-    write_selection
+from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, \
+    run_summary, write_run, write_selection
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -157,12 +161,23 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
 def _master(scene: Scene, path, size, force, retry_failed, select_configs, execute, stop,
             heartbeat: Heartbeat) -> dict:
     say = heartbeat.say
+    # Every start meshes the scene and, when checked, its finer mesh: refuse a mesh beyond
+    # memory now, not at the end of the first start.
+    check_scene(scene)
+    if scene.multistart.error_estimate:
+        check_scene(finer(scene))
     store = open_store(path, scene, mpi_size=size, force=force)
     done = failed = 0
+    ms = scene.multistart
+    summaries = {}
+
+    def selection():
+        return select(list(summaries.values()), ms.plateau_tol, range(ms.k_min, ms.k_max + 1))
     try:
+        summaries.update((summary.id, summary) for summary in run_summaries(store))
         finished = finished_ids(store, failed=not retry_failed)
         configs = configurations(scene)
-        repeats = repeated_starts(scene, configs) if scene.multistart.skip_repeated_starts else {}
+        repeats = repeated_starts(scene, configs) if ms.skip_repeated_starts else {}
         wanted = [c for c in configs if c.id not in finished and (select_configs is None or select_configs(c))]
         todo = [c for c in wanted if c.id not in repeats]
         skipped = [f"{c.id} (= {repeats[c.id]})" for c in wanted if c.id in repeats]
@@ -176,11 +191,14 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         if skipped:
             say(f"skipped {len(skipped)} Lloyd start{'s' if len(skipped) > 1 else ''} whose initial layout repeats "
                 f"an earlier start of its k: {', '.join(skipped)}")
-        rungs = stored_rungs(store, PruneRule.from_settings(scene.multistart), score_kind(scene))
+        rungs = stored_rungs(store, PruneRule.from_settings(ms), score_kind(scene))
 
         def record(rec) -> None:
             nonlocal done, failed
+            # Stored and fsync-ed, then /selection brought up to date, then announced.
             write_run(store, rec)
+            summaries[rec.id] = run_summary(rec)
+            write_selection(store, selection())
             done += 1
             failed += not rec.ok
             elapsed = time.perf_counter() - started
@@ -198,13 +216,12 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             return rungs.decide(progress.k, progress.iteration, progress.score) if progress.rung else None
 
         execute(todo, record, answer, heartbeat.tick)
+        final = selection()
+        write_selection(store, final)  # also when nothing was left to do
     finally:
-        selection = select(run_summaries(store), scene.multistart.plateau_tol,
-                           range(scene.multistart.k_min, scene.multistart.k_max + 1))
-        write_selection(store, selection)
-        store.close()
-    choice = None if selection.chosen_k is None else \
-        f"chosen k = {selection.chosen_k} (run {selection.chosen_run}); {selection.verdict()}"
+        store.close()  # on an error too, without writing more: the file holds what was stored
+    choice = None if final.chosen_k is None else \
+        f"chosen k = {final.chosen_k} (run {final.chosen_run}); {final.verdict()}"
     return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested, "choice": choice}
 
 

@@ -41,6 +41,7 @@ def summary_json(selection, errors: dict | None = None) -> dict:
             "resolved": selection.resolved, "metric_error": _finite_or_none(selection.metric_error),
             "weakest_decision": None if selection.weakest is None else list(selection.weakest),
             "decision_margin": _finite_or_none(selection.margin),
+            "decision_finer_margin": _finite_or_none(selection.finer_margin),
             "decision_error": _finite_or_none(selection.margin_error), "resolution": selection.verdict()}
 
 

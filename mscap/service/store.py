@@ -1,279 +1,165 @@
 """The HDF5 results store of the multi-start service (h5py; plain datasets and
 attributes only, readable with ``h5ls``/``h5dump``).
 
-The schema is declared once, below (``ROOT_ATTRS``, ``RUN_ATTRS``, ``RUN_DATASETS``,
-``HISTORY_COLUMNS``, ``SELECTION_ITEMS``); ``docs/hdf5.md`` is written from it and a
-test checks the two agree. Only one process (the master) writes. A run is written
-under a temporary name and renamed when complete, then the file is flushed, so a
-``kill -9`` leaves at most a temporary group, which ``open_store`` deletes.
+The schema is declared once, in :mod:`mscap.service.schema` (re-exported here with
+:class:`RunRecord`); the checks of a file live in :mod:`mscap.service.checks`. Only one
+process (the master) writes, holding the file's lock (:mod:`mscap.service.outfile`).
+Before each run the room it needs is reserved; the run is written under a temporary
+name, renamed when complete, then the file is flushed and ``fsync``-ed, so a ``kill -9``
+leaves at most a temporary group and a full disk nothing at all; ``open_store`` deletes
+the temporary groups and any damaged run (:func:`damaged_runs`). Readers check the file
+first (:func:`check_store`).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import os
 import tomllib
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
 
 from mscap import __version__
-from mscap.design.history import min_pairwise_l1, pairwise_l1, HISTORY_FIELDS
-from mscap.errors import StoreError
+from mscap.errors import StoreError, StoreFullError
 from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
-from mscap.service.accuracy import relative_difference
-from mscap.service.selection import SELECTION_RULE_BOUND, RunSummary, Selection, select, SELECTION_RULE, run_id
+from mscap.service.checks import check_store, damaged_runs, one_line, run_problem
+from mscap.service.outfile import WriteLock, check_output_path, reserve, room_text
+from mscap.service.schema import (FORMAT, HISTORY_COLUMNS, ROOT_ATTRS, RUN_ATTRS, RUN_DATASETS, SCHEMA_VERSION,
+                                  SELECTION_ITEMS, TEMP_PREFIX, RunRecord, failed_record, record_bytes,
+                                  record_from_result, run_summary, schema_markdown)
+from mscap.service.selection import SELECTION_RULE_BOUND, RunSummary, Selection, select, SELECTION_RULE
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["StoreError", "RunRecord", "FORMAT", "SCHEMA_VERSION", "ROOT_ATTRS", "RUN_ATTRS",
-           "RUN_DATASETS", "HISTORY_COLUMNS", "SELECTION_ITEMS", "TEMP_PREFIX", "open_store", "create_store", "read_store",
-           "finished_ids", "write_run", "read_run", "run_summaries", "write_selection", "store_selection",
+__all__ = ["StoreError", "StoreFullError", "RunRecord", "ResultsFile", "check_store", "damaged_runs", "run_problem",
+           "run_summary", "record_bytes", "WriteGuard", "FORMAT", "SCHEMA_VERSION", "ROOT_ATTRS", "RUN_ATTRS",
+           "RUN_DATASETS", "HISTORY_COLUMNS", "SELECTION_ITEMS", "TEMP_PREFIX", "open_store", "create_store",
+           "read_store", "finished_ids", "write_run", "read_run", "run_summaries", "write_selection", "store_selection",
            "record_from_result", "failed_record", "scene_settings", "schema_markdown"]
 
 log = logging.getLogger(__name__)
 
-FORMAT = "mscap-results"
-SCHEMA_VERSION = 2  # 2: the finer-mesh error estimate of every run (mscap.service.accuracy)
-TEMP_PREFIX = ".tmp_"
 
-# ---------------------------------------------------------------- the schema, once
-#: Attributes of the root group ``/``: name → (type, meaning).
-ROOT_ATTRS = {
-    "format": ("str", f'always "{FORMAT}"'),
-    "schema_version": ("int", "version of this layout"),
-    "mscap_version": ("str", "mscap version that created the file"),
-    "scene_name": ("str", "the scene's name"),
-    "scene_path": ("str", "the scene file as given when the file was created"),
-    "scene_toml": ("str", "the scene file's full text"),
-    "scene_sha256": ("str", "sha256 of scene_toml (Scene.sha256); a rerun must match it"),
-    "start_time": ("str", "UTC time the file was created, ISO 8601"),
-    "last_open_time": ("str", "UTC time the file was last opened for writing, ISO 8601"),
-    "mpi_size": ("int", "number of MPI ranks of the latest session that wrote to it"),
-    "sessions": ("int", "number of sessions that wrote to it (1 + resumes)"),
-}
-
-#: Attributes of a run group ``/runs/<id>``.
-RUN_ATTRS = {
-    "k": ("int", "number of capacitors"),
-    "seed": ("int", "seed of the initial layout"),
-    "init": ("str", '"lloyd" or "random" (or "scene")'),
-    "status": ("str", '"ok", "pruned" (stopped at a rung as dominated within its k, mscap.service.pruning; '
-                      'its design and history up to there are stored; it counts as finished, not failed, and is '
-                      'never the best run of its k) '
-                      'or "failed"'),
-    "error": ("str", 'error text of a failed run ("" if ok)'),
-    "reason": ("str", 'why the optimiser stopped ("" if failed; for a pruned run the rule\'s numbers: step, J, '
-                      'threshold, peers, eta)'),
-    "wall_s": ("float", "wall time of the run on its worker (s)"),
-    "iterations": ("int", "accepted optimiser steps (0 if failed)"),
-    "rank": ("int", "MPI rank of the worker that ran it (0 without MPI)"),
-    "metric_pF": ("float", "final min over pose pairs of the L1 distance of capacitance vectors (NaN if failed)"),
-    "error_estimate": ("float", "max relative difference of the final capacitances from the same design's on a "
-                                "mesh one level finer (mscap.service.accuracy; NaN if not checked)"),
-    "finer_metric_pF": ("float", "metric_pF of the final design on that finer mesh (NaN if not checked)"),
-    "error_estimate_wall_s": ("float", "wall time of that check (s), not part of wall_s (NaN if not checked)"),
-    "bound_mm": ("float", "final read-back bound: soft max over the design family's grid of the Cramér–Rao "
-                          "bound on the RMS per-vertex error (mm, mscap.design.readback; NaN without a design family)"),
-    "initial_bound_mm": ("float", "the same for the initial layout (mm; NaN without a design family)"),
-}
-
-#: Datasets of a run group (ragged outlines: ``points[offsets[j]:offsets[j+1]]`` is outline j).
-RUN_DATASETS = {
-    "initial_outline_points_mm": ("float64 (n, 2)", "initial outlines, concatenated (mm)"),
-    "initial_outline_offsets": ("int64 (k + 1,)", "start of each initial outline in the points, then n"),
-    "final_outline_points_mm": ("float64 (n, 2)", "optimised outlines, concatenated (mm); empty if failed"),
-    "final_outline_offsets": ("int64 (k + 1,)", "start of each final outline, then n; [0] if failed"),
-    "poses": ("str (n_poses,)", "pose names, the row order of the capacitance tables"),
-    "initial_capacitance_pF": ("float64 (n_poses, k)", "capacitance per pose and capacitor, initial layout"),
-    "final_capacitance_pF": ("float64 (n_poses, k)", "the same for the optimised layout (0 rows if failed)"),
-    "finer_capacitance_pF": ("float64 (n_poses, k)", "the optimised layout on the finer mesh (0 rows if not checked)"),
-    "history/<column>": ("one 1-D dataset per column", "the optimiser history, one row per event (below)"),
-}
-
-#: History columns (``mscap.design.optimizer.HISTORY_FIELDS``) and their HDF5 types.
-HISTORY_COLUMNS = {name: ("str" if name == "event" else
-                          "int64" if name in ("iteration", "level", "evaluations", "newton_iterations")
-                          else "float64") for name in HISTORY_FIELDS}
-
-#: Items of ``/selection`` (rewritten after every run): datasets are per k, ascending.
-SELECTION_ITEMS = {
-    "k": ("dataset int64 (n_k,)", "k values"),
-    "runs_ok": ("dataset int64 (n_k,)", "runs per k with a design: finished or pruned"),
-    "runs_failed": ("dataset int64 (n_k,)", "failed runs per k"),
-    "best_metric_pF": ("dataset float64 (n_k,)", "best run's metric per k (NaN if none succeeded)"),
-    "best_bound_mm": ("dataset float64 (n_k,)", "best run's read-back bound per k (NaN without a design family)"),
-    "best_run": ("dataset str (n_k,)", 'id of the best run per k ("" if none)'),
-    "wall_s": ("dataset float64 (n_k,)", "summed wall time of the runs per k (s)"),
-    "chosen_k": ("attribute int", "the chosen k (-1 if no run succeeded)"),
-    "chosen_run": ("attribute str", 'best run of the chosen k ("" if none)'),
-    "plateau_tol": ("attribute float", "the scene's multistart.plateau_tol used"),
-    "plateau_reached": ("attribute int", "1 if a larger k with a successful run confirms the plateau"),
-    "runs_total": ("attribute int", "runs stored when the selection was written"),
-    "rule": ("attribute str", "the rule in words"),
-    "finer_chosen_k": ("attribute int", "the k the rule picks from the best runs' finer-mesh metrics (-1: a best "
-                       "run unchecked, or chosen by read-back bound)"),
-    "resolution": ("attribute str", "whether the finer mesh picks the same k, with the weakest decision's margin "
-                   "and its two runs' metric errors (`Selection.verdict`)"),
-}
-
-
-def schema_markdown() -> str:
-    """The schema as Markdown tables (the body of ``docs/hdf5.md``'s "Schema")."""
-    def table(title: str, items: dict) -> str:
-        rows = "\n".join(f"| `{name}` | {kind} | {meaning} |" for name, (kind, meaning) in items.items())
-        return f"### {title}\n\n| name | type | meaning |\n|---|---|---|\n{rows}\n"
-    history = {name: (kind, "see docs/optimize.md") for name, kind in HISTORY_COLUMNS.items()}
-    return "\n".join([table("Root attributes (`/`)", ROOT_ATTRS),
-                      table("Run attributes (`/runs/<id>`)", RUN_ATTRS),
-                      table("Run datasets (`/runs/<id>/...`)", RUN_DATASETS),
-                      table("History columns (`/runs/<id>/history/<column>`)", history),
-                      table("Selection (`/selection`)", SELECTION_ITEMS)])
-
-
-# ---------------------------------------------------------------- records
-def _empty_history() -> dict[str, np.ndarray]:
-    return {name: np.array([], dtype=object if kind == "str" else kind) for name, kind in HISTORY_COLUMNS.items()}
-
-
-@dataclass(frozen=True, eq=False)
-class RunRecord:
-    """One finished start, as sent from a worker to the master and stored.
-
-    Outlines are tuples of ``(n_j, 2)`` arrays (mm); capacitances ``(n_poses, k)`` (pF);
-    ``history`` maps every name of ``HISTORY_FIELDS`` to a 1-D array. A failed run has
-    ``status == "failed"``, its ``error`` text and empty final outlines/capacitances.
-    Plain numpy and str only, so it pickles cheaply over MPI.
-    """
-
-    k: int
-    seed: int
-    init: str
-    status: str
-    error: str = ""
-    reason: str = ""
-    wall_s: float = 0.0
-    iterations: int = 0
-    rank: int = 0
-    poses: tuple[str, ...] = ()
-    initial_outlines: tuple[np.ndarray, ...] = ()
-    final_outlines: tuple[np.ndarray, ...] = ()
-    initial_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    final_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    history: dict = field(default_factory=_empty_history)
-    finer_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    error_estimate_wall_s: float = math.nan
-    bound_mm: float = math.nan
-    initial_bound_mm: float = math.nan
-
-    @property
-    def id(self) -> str:
-        return run_id(self.k, self.seed, self.init)
-
-    @property
-    def ok(self) -> bool:
-        """Did the run produce a design (finished or pruned)?"""
-        return self.status in ("ok", "pruned")
-
-    @property
-    def pruned(self) -> bool:
-        return self.status == "pruned"
-
-    @property
-    def metric(self) -> float:
-        """Final min pairwise L1 distance (pF); NaN if failed."""
-        if not self.ok or len(self.final_capacitance_pF) == 0:
-            return math.nan
-        return min_pairwise_l1(self.final_capacitance_pF)
-
-    @property
-    def checked(self) -> bool:
-        """Was the final design re-simulated on a finer mesh (:mod:`mscap.service.accuracy`)?"""
-        return self.ok and np.size(self.finer_capacitance_pF) > 0
-
-    @property
-    def error_estimate(self) -> float:
-        """Max relative difference of the final capacitances from the finer mesh's; NaN
-        if not checked."""
-        return relative_difference(self.final_capacitance_pF, self.finer_capacitance_pF) if self.checked \
-            else math.nan
-
-    @property
-    def finer_metric_pF(self) -> float:
-        """Min pairwise L1 distance on the finer mesh (pF); NaN if not checked."""
-        return min_pairwise_l1(self.finer_capacitance_pF) if self.checked else math.nan
-
-    @property
-    def signal_error(self) -> float:
-        """Largest relative difference of a pose-to-pose L1 distance ‖C_a − C_b‖₁ (the
-        signal the objective and the k choice read) from the finer mesh's; NaN if not
-        checked. Differences of capacitances carry more relative error than C itself."""
-        if not self.checked or len(self.finer_capacitance_pF) < 2:
-            return math.nan
-        return relative_difference(pairwise_l1(self.final_capacitance_pF), pairwise_l1(self.finer_capacitance_pF))
-
-    @property
-    def metric_error(self) -> float:
-        """Relative difference of the metric (min pairwise L1) from the finer mesh's; NaN if
-        not checked."""
-        return abs(self.metric - self.finer_metric_pF) / abs(self.finer_metric_pF) if self.checked else math.nan
-
-
-def record_from_result(k: int, seed: int, init: str, initial_layout, result, poses, wall_s: float,
-                       rank: int = 0) -> RunRecord:
-    """A successful ``RunRecord`` from ``mscap.design.optimizer.optimize``'s ``OptimizeResult``.
-
-    ``initial_layout`` is the layout the design was built from; ``poses`` the scene's
-    poses (or their names).
-    """
-    names = tuple(p if isinstance(p, str) else p.name for p in poses)
-    rows = [r.row() for r in result.history]
-    history = {name: np.array([row[i] for row in rows], dtype=object if kind == "str" else kind)
-               for i, (name, kind) in enumerate(HISTORY_COLUMNS.items())}
-    return RunRecord(k=k, seed=seed, init=init, status="ok", reason=str(result.reason), wall_s=float(wall_s),
-                     iterations=int(result.iterations), rank=rank, poses=names,
-                     initial_outlines=tuple(np.array(o, dtype=float) for o in initial_layout.outlines),
-                     final_outlines=tuple(np.array(o, dtype=float) for o in result.layout.outlines),
-                     initial_capacitance_pF=np.array(result.initial.capacitance_pF, dtype=float),
-                     final_capacitance_pF=np.array(result.evaluation.capacitance_pF, dtype=float),
-                     history=history)
-
-
-def failed_record(k: int, seed: int, init: str, error: str, wall_s: float, rank: int = 0,
-                  initial_layout=None) -> RunRecord:
-    """A failed ``RunRecord`` with its error text (and the initial layout, if one was
-    built before the failure)."""
-    outlines = () if initial_layout is None else tuple(np.array(o, dtype=float) for o in initial_layout.outlines)
-    return RunRecord(k=k, seed=seed, init=init, status="failed", error=str(error), wall_s=float(wall_s),
-                     rank=rank, initial_outlines=outlines, initial_capacitance_pF=np.zeros((0, k)),
-                     final_capacitance_pF=np.zeros((0, k)))
-
-
-# ---------------------------------------------------------------- files
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def create_store(path, source: str, sha256: str, name: str, scene_path: str, mpi_size: int) -> h5py.File:
-    """Create (overwrite) a results file for the scene text ``source``; ``open_store``
-    and ``mscap merge`` use it."""
-    # Default libver (no "latest"): files not closed cleanly carry no open-for-write flag
-    # and reopen without h5clear.
-    f = h5py.File(path, "w")
+#: Bytes a new file needs for its root attributes (the scene text) and ``/runs``, beyond the text.
+CREATE_BYTES = 64 * 1024
+#: Room reserved for one run beyond twice its data: object headers, attributes, the
+#: growth of ``/runs``' index (measured: at most 21 KiB per run and selection rewrite,
+#: 600 synthetic runs of k = 2..8; docs/hdf5.md "Writing safely").
+RUN_OVERHEAD_BYTES = 64 * 1024
+#: Per run already stored: the name index of ``/runs`` may be reallocated at twice its size.
+INDEX_BYTES_PER_RUN = 64
+
+
+class ResultsFile(h5py.File):
+    """A results file open for writing: an ``h5py.File`` that holds the file's
+    :class:`~mscap.service.outfile.WriteLock` (released by ``close``), makes room before
+    each write (:meth:`make_room`) and makes each write durable (:meth:`commit`)."""
+
+    def __init__(self, lock: WriteLock, mode: str):
+        # Default libver (no "latest"): files not closed cleanly carry no open-for-write
+        # flag and reopen without h5clear. HDF5's own locking stays off: ``lock`` holds the
+        # same flock on the file for the whole session.
+        super().__init__(lock.path, mode, locking=False)
+        self.lock = lock
+        self.failed = False  # a write failed: closing must not raise over that error
+
+    def make_room(self, nbytes: int) -> None:
+        """Allocate ``nbytes`` past HDF5's end of file, or raise
+        :class:`~mscap.errors.StoreFullError` with nothing written."""
+        reserve(self.lock, int(self.id.get_filesize()), int(nbytes))
+
+    def commit(self) -> None:
+        """Flush HDF5's buffers and ``fsync``: what was written survives a crash."""
+        self.flush()
+        self.lock.sync()
+
+    def close(self) -> None:
+        try:
+            if self.id.valid:
+                super().close()
+        except (OSError, RuntimeError):
+            if not self.failed:
+                raise
+        finally:
+            self.lock.close()
+
+    def discard(self) -> None:
+        """Close and delete the file (a new file whose writing failed)."""
+        try:
+            super().close()
+        except Exception:  # the file goes anyway
+            pass
+        self.lock.remove()
+
+
+class WriteGuard:
+    """Turns an HDF5 write failure into a :class:`StoreError` naming the file, what was
+    being written and the free space."""
+
+    def __init__(self, store: ResultsFile, what: str):
+        self.store, self.what = store, what
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, exc, tb):
+        if isinstance(exc, (OSError, RuntimeError)):
+            self.store.failed = True
+            raise StoreError(f"{self.store.lock.path}: writing {self.what} failed ({one_line(exc)}); "
+                             f"{room_text(self.store.lock.path)}") from exc
+        return False
+
+
+def create_store(path, source: str, sha256: str, name: str, scene_path: str, mpi_size: int,
+                 force: bool = True) -> ResultsFile:
+    """Create (with ``force``: overwrite) a results file for the scene text ``source``;
+    ``open_store`` and ``mscap merge`` use it. The file is locked first: one another
+    process holds is refused, never truncated.
+
+    Raises
+    ------
+    StoreError
+        ``path`` is a link or a directory, another process holds it, or (without
+        ``force``) it exists and is not empty.
+    """
+    path = check_output_path(path)
+    lock = WriteLock(path, force)
+    if not (force or lock.empty):
+        lock.close()
+        raise StoreError(f"{path} exists; use --force to overwrite it")
+    return _create(lock, source, sha256, name, scene_path, mpi_size)
+
+
+def _create(lock: WriteLock, source: str, sha256: str, name: str, scene_path: str, mpi_size: int) -> ResultsFile:
+    try:
+        f = ResultsFile(lock, "w")
+    except OSError as exc:
+        lock.remove()
+        raise StoreError(f"{lock.path}: cannot create ({one_line(exc)}); {room_text(lock.path)}") from None
     now = _now()
     values = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "mscap_version": __version__,
               "scene_name": name, "scene_path": scene_path, "scene_toml": source, "scene_sha256": sha256,
               "start_time": now, "last_open_time": now, "mpi_size": int(mpi_size), "sessions": 1}
     assert set(values) == set(ROOT_ATTRS)
-    f.attrs.update(values)
-    f.create_group("runs")
-    f.flush()
+    try:
+        f.make_room(CREATE_BYTES + 2 * len(source.encode()))
+        with WriteGuard(f, "a new results file"):
+            f.attrs.update(values)
+            f.create_group("runs")
+            f.commit()
+    except BaseException:
+        f.discard()
+        raise
     return f
 
 
@@ -282,33 +168,33 @@ def _check_format(f: h5py.File, path) -> None:
         raise StoreError(f"{path}: not an mscap results file (no format = {FORMAT!r} attribute)")
 
 
-def open_store(path, scene: Scene, mpi_size: int = 1, force: bool = False) -> h5py.File:
+def open_store(path, scene: Scene, mpi_size: int = 1, force: bool = False) -> ResultsFile:
     """Create the results file of ``scene``, or reopen it to resume.
 
-    A reopened file must hold the same scene (same ``Scene.sha256``); its half-written
-    temporary run groups (from a killed job) are deleted. ``force`` starts over: the
-    file is recreated empty. Returns the open, writable ``h5py.File``; close it (or use
-    it as a context manager) when done.
+    The file is locked before anything is decided: a file another process writes is
+    refused (``force`` included) and left untouched. A reopened file must hold the same
+    scene (same ``Scene.sha256``); its half-written temporary run groups (from a killed
+    job) and its damaged runs (:func:`damaged_runs`) are deleted, so they run again.
+    ``force`` starts over: the file is recreated empty. ``path`` follows the rule of
+    :func:`~mscap.service.outfile.check_output_path` (no link; directories created).
+    Returns the open, writable :class:`ResultsFile`; close it (or use it as a context
+    manager) when done.
 
     Raises
     ------
     StoreError
-        The file holds another scene or is not an mscap results file (and not ``force``).
+        The file holds another scene or is not an mscap results file (and not ``force``),
+        another process holds it, or it cannot be written.
     """
-    path = Path(path)
-    args = (path, scene.source, scene.sha256, scene.name, str(scene.path), mpi_size)
-    if force or not path.exists():
-        return create_store(*args)
+    path = check_output_path(path)
+    lock = WriteLock(path, force)
+    if force or lock.empty:
+        return _create(lock, scene.source, scene.sha256, scene.name, str(scene.path), mpi_size)
     try:
-        f = h5py.File(path, "r+")
+        f = ResultsFile(lock, "r+")
     except OSError as exc:
-        if "temporarily unavailable" in str(exc):
-            raise StoreError(f"{path} is open for writing in another process (another mscap run?): "
-                             f"{exc}") from None
-        if "lock" in str(exc):
-            raise StoreError(f"{path}: HDF5 file locking failed ({exc}); on file systems without "
-                             "locking set HDF5_USE_FILE_LOCKING=FALSE") from None
-        raise StoreError(f"{path}: cannot open as HDF5 ({exc}); use --force to start over") from None
+        lock.close()
+        raise StoreError(f"{path}: cannot open as HDF5 ({one_line(exc)}); use --force to start over") from None
     try:
         _check_format(f, path)
         version = int(f.attrs.get("schema_version", -1))
@@ -320,35 +206,75 @@ def open_store(path, scene: Scene, mpi_size: int = 1, force: bool = False) -> h5
             raise StoreError(f"{path} holds results of another scene ({f.attrs.get('scene_path', '?')}, "
                              f"sha256 {stored}) than {scene.path} (sha256 {scene.sha256}); "
                              "use --force to start over or another output file")
+        runs = f.require_group("runs")
+        drop = {n: "half-written" for n in runs if n.startswith(TEMP_PREFIX)}
+        drop.update(damaged_runs(f))
+        f.make_room(RUN_OVERHEAD_BYTES)
+        with WriteGuard(f, "the session's attributes"):
+            for rid, problem in drop.items():
+                log.warning("%s: dropping run %s (%s); it runs again", path, rid.removeprefix(TEMP_PREFIX), problem)
+                try:
+                    del runs[rid]
+                except (KeyError, OSError, RuntimeError):  # its index entry itself is damaged
+                    f.close()
+                    _rebuild(path, set(drop))
+                    return open_store(path, scene, mpi_size, force)
+            if TEMP_PREFIX + "selection" in f:
+                del f[TEMP_PREFIX + "selection"]
+            f.attrs["mpi_size"] = int(mpi_size)
+            f.attrs["last_open_time"] = _now()
+            f.attrs["sessions"] = int(f.attrs.get("sessions", 1)) + 1
+            f.commit()
     except BaseException:
         f.close()
         raise
-    runs = f.require_group("runs")
-    for name in [n for n in runs if n.startswith(TEMP_PREFIX)]:
-        log.warning("%s: dropping half-written run %s", path, name[len(TEMP_PREFIX):])
-        del runs[name]
-    if TEMP_PREFIX + "selection" in f:
-        del f[TEMP_PREFIX + "selection"]
-    f.attrs["mpi_size"] = int(mpi_size)
-    f.attrs["last_open_time"] = _now()
-    f.attrs["sessions"] = int(f.attrs.get("sessions", 1)) + 1
-    f.flush()
     return f
 
 
-def read_store(path) -> h5py.File:
-    """Open an existing results file read-only (for inspection and merging).
+def _rebuild(path, drop: set[str]) -> None:
+    """Replace the results file ``path`` by a copy without the runs ``drop`` (damaged so
+    that not even their names can be deleted): written beside it, then renamed over it."""
+    rebuilt = path.with_name(f".{path.name}.rebuilt")
+    with h5py.File(path, "r", locking=False) as old:
+        a = old.attrs
+        new = create_store(rebuilt, str(a["scene_toml"]), str(a["scene_sha256"]), str(a["scene_name"]),
+                           str(a.get("scene_path", "")), int(a.get("mpi_size", 1)))
+        try:
+            new.attrs.update({name: a[name] for name in ROOT_ATTRS if name in a})
+            for rid in sorted(set(finished_ids(old)) - drop):
+                new.make_room(2 * RUN_OVERHEAD_BYTES)
+                with WriteGuard(new, f"run {rid} into {rebuilt}"):
+                    old.copy(old["runs"][rid], new["runs"], name=rid)
+            new.commit()
+        except BaseException:
+            new.discard()
+            raise
+        new.close()
+    os.replace(rebuilt, path)
+    log.warning("%s: rebuilt without the damaged runs %s", path, ", ".join(sorted(drop)))
+
+
+def read_store(path, check: bool = True) -> h5py.File:
+    """Open an existing results file read-only (for inspection and merging), after
+    checking it (:func:`check_store`) unless ``check`` is False.
 
     Without HDF5 file locking, so a running job's file can be inspected: it shows the
     runs as of the writer's last flush (the writer flushes after every run).
+
+    Raises
+    ------
+    StoreError
+        Not HDF5, not an mscap results file, a newer schema, or a damaged record (named).
     """
     try:
         f = h5py.File(path, "r", locking=False)
     except OSError as exc:
-        raise StoreError(f"{path}: cannot open as HDF5 ({exc})") from None
+        raise StoreError(f"{path}: cannot open as HDF5 ({one_line(exc)})") from None
     try:
         _check_format(f, path)
-    except StoreError:
+        if check:
+            check_store(f, path)
+    except BaseException:
         f.close()
         raise
     return f
@@ -375,18 +301,18 @@ def _unragged(points: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, ...]
 _STR = h5py.string_dtype()
 
 
-def write_run(store: h5py.File, record: RunRecord) -> str:
-    """Write one run (replacing an earlier one of the same id) and flush; returns its id.
+def write_run(store: ResultsFile, record: RunRecord) -> str:
+    """Write one run (replacing an earlier one of the same id), flush and ``fsync``;
+    returns its id.
 
-    The group is built as ``runs/.tmp_<id>`` and renamed to ``runs/<id>`` once complete,
-    so the name ``runs/<id>`` only ever refers to a whole run.
+    Room for it is reserved first (twice its data plus :data:`RUN_OVERHEAD_BYTES`): a disk
+    that cannot take it raises :class:`~mscap.errors.StoreFullError` before anything is
+    written. The group is built as ``runs/.tmp_<id>`` and renamed to ``runs/<id>`` once
+    complete, so the name ``runs/<id>`` only ever refers to a whole run.
     """
     runs = store["runs"]
     rid = record.id
     temp = TEMP_PREFIX + rid
-    if temp in runs:
-        del runs[temp]
-    g = runs.create_group(temp)
     values = {"k": int(record.k), "seed": int(record.seed), "init": record.init, "status": record.status,
               "error": record.error, "reason": record.reason, "wall_s": float(record.wall_s),
               "iterations": int(record.iterations), "rank": int(record.rank), "metric_pF": record.metric,
@@ -394,26 +320,33 @@ def write_run(store: h5py.File, record: RunRecord) -> str:
               "error_estimate_wall_s": float(record.error_estimate_wall_s), "bound_mm": float(record.bound_mm),
               "initial_bound_mm": float(record.initial_bound_mm)}
     assert set(values) == set(RUN_ATTRS)
-    g.attrs.update(values)
-    for stage, outlines in (("initial", record.initial_outlines), ("final", record.final_outlines)):
-        points, offsets = _ragged(outlines)
-        g.create_dataset(f"{stage}_outline_points_mm", data=points)
-        g.create_dataset(f"{stage}_outline_offsets", data=offsets)
-    g.create_dataset("poses", data=np.array(record.poses, dtype=object), dtype=_STR)
     k = int(record.k)
-    for name in ("initial_capacitance_pF", "final_capacitance_pF", "finer_capacitance_pF"):
-        g.create_dataset(name, data=np.asarray(getattr(record, name), dtype=float).reshape(-1, k))
-    h = g.create_group("history")
-    for name, kind in HISTORY_COLUMNS.items():
-        column = record.history.get(name, [])
-        if kind == "str":
-            h.create_dataset(name, data=np.array([str(x) for x in column], dtype=object), dtype=_STR)
-        else:
-            h.create_dataset(name, data=np.asarray(column, dtype=kind))
-    if rid in runs:
-        del runs[rid]
-    runs.move(temp, rid)
-    store.flush()
+    if k < 1:
+        raise StoreError(f"{store.lock.path}: run {rid} has k = {k}; a stored run has at least one capacitor")
+    store.make_room(2 * record_bytes(record) + RUN_OVERHEAD_BYTES + INDEX_BYTES_PER_RUN * len(runs))
+    with WriteGuard(store, f"run {rid}"):
+        if temp in runs:
+            del runs[temp]
+        g = runs.create_group(temp)
+        g.attrs.update(values)
+        for stage, outlines in (("initial", record.initial_outlines), ("final", record.final_outlines)):
+            points, offsets = _ragged(outlines)
+            g.create_dataset(f"{stage}_outline_points_mm", data=points)
+            g.create_dataset(f"{stage}_outline_offsets", data=offsets)
+        g.create_dataset("poses", data=np.array(record.poses, dtype=object), dtype=_STR)
+        for name in ("initial_capacitance_pF", "final_capacitance_pF", "finer_capacitance_pF"):
+            g.create_dataset(name, data=np.asarray(getattr(record, name), dtype=float).reshape(-1, k))
+        h = g.create_group("history")
+        for name, kind in HISTORY_COLUMNS.items():
+            column = record.history.get(name, [])
+            if kind == "str":
+                h.create_dataset(name, data=np.array([str(x) for x in column], dtype=object), dtype=_STR)
+            else:
+                h.create_dataset(name, data=np.asarray(column, dtype=kind))
+        if rid in runs:
+            del runs[rid]
+        runs.move(temp, rid)
+        store.commit()
     return rid
 
 
@@ -424,7 +357,13 @@ def read_run(store: h5py.File, rid: str) -> RunRecord:
         known = sorted(finished_ids(store))
         hint = ", ".join(known[:8]) + (", ..." if len(known) > 8 else "")
         raise StoreError(f"{store.filename}: no run {rid!r} (runs: {hint or 'none'})")
-    g = runs[rid]
+    try:
+        return _read_run(runs[rid])
+    except (KeyError, OSError, RuntimeError, ValueError, TypeError) as exc:
+        raise StoreError(f"{store.filename}: run {rid} is damaged: {one_line(exc)}") from None
+
+
+def _read_run(g: h5py.Group) -> RunRecord:
     a = g.attrs
     history = {name: (g["history"][name].asstr()[()].astype(object) if kind == "str"
                       else g["history"][name][()]) for name, kind in HISTORY_COLUMNS.items()}
@@ -469,8 +408,20 @@ def store_selection(store: h5py.File) -> Selection:
     return select(run_summaries(store), ms.plateau_tol, range(ms.k_min, ms.k_max + 1))
 
 
-def write_selection(store: h5py.File, selection: Selection) -> None:
-    """Replace ``/selection`` with ``selection`` and flush (built under a temporary name)."""
+#: Room reserved for ``/selection`` beyond 128 bytes per k (measured: at most 4 KiB with 3 k values).
+SELECTION_BYTES = 32 * 1024
+
+
+def write_selection(store: ResultsFile, selection: Selection) -> None:
+    """Replace ``/selection`` with ``selection``, flush and ``fsync`` (built under a
+    temporary name, room reserved first as for a run)."""
+    per_k = selection.per_k
+    store.make_room(SELECTION_BYTES + 128 * len(per_k))
+    with WriteGuard(store, "/selection"):
+        _write_selection(store, selection)
+
+
+def _write_selection(store: ResultsFile, selection: Selection) -> None:
     temp = TEMP_PREFIX + "selection"
     if temp in store:
         del store[temp]
@@ -495,4 +446,4 @@ def write_selection(store: h5py.File, selection: Selection) -> None:
     if "selection" in store:
         del store["selection"]
     store.move(temp, "selection")
-    store.flush()
+    store.commit()

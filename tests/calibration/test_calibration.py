@@ -227,6 +227,30 @@ def test_cache_is_reused_extended_and_survives_a_noise_change(write_scene, tmp_p
     assert "15 poses to simulate" in lines[0]                  # other physics: cache started over
 
 
+def test_a_cache_held_elsewhere_or_behind_a_link_is_refused_untouched(write_scene, tmp_path):
+    """The cache is opened like a results file (mscap.service.outfile): a cache another
+    process writes is refused before anything is truncated, and a link is never followed."""
+    from mscap.errors import MscapError
+    from mscap.service.outfile import WriteLock
+
+    scene = load_scene(write_scene(calibration_scene()))
+    held = tmp_path / "held.h5"
+    held.write_bytes(b"another job's cache")
+    other = WriteLock(held)  # its own open file: the lock of another writer
+    try:
+        with pytest.raises(MscapError, match="open for writing in another process"):
+            simulate_family(scene, designs(scene)[:1], held, _OneRank())
+    finally:
+        other.close()
+    assert held.read_bytes() == b"another job's cache"
+    target = tmp_path / "target.txt"
+    target.write_text("keep")
+    (tmp_path / "link.h5").symlink_to(target)
+    with pytest.raises(MscapError, match="symbolic link"):
+        simulate_family(scene, designs(scene)[:1], tmp_path / "link.h5", _OneRank())
+    assert target.read_text() == "keep"
+
+
 def test_a_failing_pose_is_nan_and_left_out(write_scene, tmp_path, monkeypatch):
     import mscap.fem.simulate as simulate_module
     from mscap.errors import MscapError

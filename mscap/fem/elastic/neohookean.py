@@ -131,8 +131,16 @@ def element_terms(el: fem.Element, rest_inv: np.ndarray, rest_vol: np.ndarray, x
     m, nb = xe.shape[:2]
     energy, min_j = np.zeros(m), np.full(m, np.inf)
     grad = np.zeros((m, nb, 3))
-    hess = np.zeros((3, 3, nb, nb, m)) if hessian else None
     xt = np.swapaxes(xe, 1, 2)
+    nq = len(el.weights)
+    # Per point q, kept for the Hessian: B_q = G_q F_q⁻¹ as [m, q, i, a], the two
+    # coefficients c1 = w vol λ and c2 = w vol (μ − λ ln J) of its outer products, and G_q.
+    # (One point, P1: the outer products of that point directly, 1.3x faster.)
+    batched = hessian and not project and nq > 1
+    b = np.empty((m, nq, 3, nb)) if batched else None
+    c1, c2 = np.empty((m, nq)), np.empty((m, nq))
+    gs = np.empty((m, nq, nb, 3)) if batched else None
+    hess = np.zeros((3, 3, nb, nb, m)) if hessian and not batched else None
     for q, w in enumerate(el.weights):
         G = _rest_gradients(el, rest_inv, q)
         F = xt @ G
@@ -145,24 +153,58 @@ def element_terms(el: fem.Element, rest_inv: np.ndarray, rest_vol: np.ndarray, x
         log_j = np.log(J)
         energy += wv * _psi(F, log_j, mu, lam)
         grad += wv[:, None, None] * (G @ np.swapaxes(_piola(F, np.swapaxes(f_inv, 1, 2), log_j, mu, lam), 1, 2))
-        if not hessian:
-            continue
-        if project:
+        if project and hessian:
             hess += wv * _projected_block(G, f_inv, log_j, mu, lam)
-            continue
-        # Element index last: every product below runs over all elements in its inner loop.
-        B = np.ascontiguousarray((G @ f_inv).transpose(2, 1, 0))  # [i, a, m] = B_ai
-        outer = B[:, None, :, None, :] * B[None, :, None, :, :]  # [i, k, a, b, m] = B_ai B_bk
-        swapped = outer.transpose(1, 0, 2, 3, 4) * (wv * (mu - lam * log_j))
-        outer *= wv * lam
-        hess += outer
-        hess += swapped
-        del outer, swapped
-        gt = np.ascontiguousarray(G.transpose(1, 2, 0))  # [a, j, m]
-        ggt = (wv * mu) * np.einsum("ajm,bjm->abm", gt, gt)
-        for i in range(3):
-            hess[i, i] += ggt
+        elif hessian and not batched:
+            _add_point_hessian(hess, G, f_inv, wv, log_j, mu, lam)
+        elif batched:
+            b[:, q] = np.swapaxes(G @ f_inv, 1, 2)
+            c1[:, q] = wv * lam
+            c2[:, q] = wv * (mu - lam * log_j)
+            gs[:, q] = G * np.sqrt(wv * mu)[:, None, None]
+    if b is not None:
+        hess = _hessian(b, c1, c2, gs)
     return ElementTerms(energy, grad, hess, min_j)
+
+
+def _add_point_hessian(hess, G, f_inv, wv, log_j, mu, lam) -> None:
+    """Add one point's three outer products to ``hess`` ``[i, k, a, b, m]``."""
+    # Element index last: every product below runs over all elements in its inner loop.
+    B = np.ascontiguousarray((G @ f_inv).transpose(2, 1, 0))  # [i, a, m] = B_ai
+    outer = B[:, None, :, None, :] * B[None, :, None, :, :]  # [i, k, a, b, m] = B_ai B_bk
+    swapped = outer.transpose(1, 0, 2, 3, 4) * (wv * (mu - lam * log_j))
+    outer *= wv * lam
+    hess += outer
+    hess += swapped
+    del outer, swapped
+    gt = np.ascontiguousarray(G.transpose(1, 2, 0))  # [a, j, m]
+    ggt = (wv * mu) * np.einsum("ajm,bjm->abm", gt, gt)
+    for i in range(3):
+        hess[i, i] += ggt
+
+
+def _hessian(b: np.ndarray, c1: np.ndarray, c2: np.ndarray, gs: np.ndarray) -> np.ndarray:
+    """The Hessian ``[i, k, a, b, m]`` from the points' ``B_q`` ``[m, q, i, a]``, ``c1``,
+    ``c2`` ``[m, q]`` and ``√(w vol μ) G_q`` ``[m, q, a, j]`` (module docstring).
+
+    Each term sums over the points inside one batched product, which writes its
+    ``(3 nb)²`` entries per element once: ``S_c[x a, y b] = Σ_q c_q B_q[x, a] B_q[y, b]``
+    gives the λ term as ``S_c1[i a, k b]`` and the (μ − λ ln J) term as ``S_c2[k a, i b]``;
+    the μ term is ``δ_ik Σ_q (G_q G_qᵀ)_ab``. (Forming the outer products point by point
+    as :func:`_add_point_hessian` does, took 2.4–2.7× as long on 486 and 3,000 P2 tets.)"""
+    m, nq, _, nb = b.shape
+    flat = b.reshape(m, nq, 3 * nb)
+    s1 = (np.swapaxes(flat, 1, 2) * c1[:, None, :]) @ flat
+    s2 = (np.swapaxes(flat, 1, 2) * c2[:, None, :]) @ flat
+    g = gs.transpose(0, 2, 1, 3).reshape(m, nb, 3 * nq)
+    gg = g @ np.swapaxes(g, 1, 2)  # [m, a, b]
+    s1 = s1.reshape(m, 3, nb, 3, nb)
+    s2 = s2.reshape(m, 3, nb, 3, nb)
+    hess = s1.transpose(1, 3, 2, 4, 0) + s2.transpose(3, 1, 2, 4, 0)  # [i, k, a, b, m]
+    ggt = gg.transpose(1, 2, 0)
+    for i in range(3):
+        hess[i, i] += ggt
+    return hess
 
 
 def _projected_block(G, f_inv, log_j, mu, lam) -> np.ndarray:
@@ -177,7 +219,11 @@ def _projected_block(G, f_inv, log_j, mu, lam) -> np.ndarray:
     tangent = 0.5 * (tangent + np.swapaxes(tangent, 1, 2))
     values, vectors = np.linalg.eigh(tangent)
     tangent = (vectors * np.maximum(values, 0.0)[:, None, :]) @ np.swapaxes(vectors, 1, 2)
-    return np.einsum("maj,mijkl,mbl->ikabm", G, tangent.reshape(m, 3, 3, 3, 3), G, optimize=True)
+    # Σ_j G_aj A⁺_ijkl, then Σ_l (...) G_bl, as two batched products ([m, i, a, k, b]).
+    nb = G.shape[1]
+    left = G[:, None] @ tangent.reshape(m, 3, 3, 9)  # [m, i, a, (k l)]
+    block = left.reshape(m, 3, nb, 3, 3) @ np.swapaxes(G, 1, 2)[:, None, None]
+    return block.transpose(1, 3, 2, 4, 0)
 
 
 def piola_differential(F: np.ndarray, L: np.ndarray, mu: np.ndarray, lam: np.ndarray) -> np.ndarray:

@@ -1,0 +1,97 @@
+"""Where the commands write: output directories and the files in them.
+
+Three rules, each a one-line :class:`~mscap.errors.MscapError` when it cannot hold:
+
+- the directory a user names (``-o DIR``, ``--export DIR``) is created with its parents;
+  an existing file there, or a path that cannot be a directory, is refused before any
+  work is done (:func:`output_directory`);
+- a file mscap names inside it (``mesh.vtu``, ``<pose>.vtu``) is written to a temporary
+  file beside it and renamed over it (:func:`replace_file`): a symbolic link of that name
+  is replaced, never followed, so a link planted in the directory cannot make mscap
+  overwrite the file it points to, and a failed write leaves the old file whole;
+- names taken from a scene (pose names) pass :func:`file_stem` first: no separators, no
+  leading dot, at most :data:`MAX_STEM` characters.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import secrets
+from pathlib import Path
+from typing import Callable
+
+from mscap.errors import MscapError
+
+__all__ = ["output_directory", "replace_file", "file_stem", "file_stems", "MAX_STEM"]
+
+#: Longest file stem made from a name (file systems allow 255 bytes per component, and a
+#: suffix such as ``_elastic.vtu`` and the temporary file's prefix must fit beside it).
+MAX_STEM = 100
+
+
+def output_directory(path: str | Path, option: str) -> Path:
+    """``path`` as a directory, created with its parents; ``option`` (e.g. ``"mesh -o"``)
+    names the command-line option in the error."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise MscapError(f"{option} {path}: exists and is not a directory") from None
+    except OSError as exc:
+        raise MscapError(f"{option} {path}: cannot create the directory ({exc.strerror})") from None
+    if not out.is_dir():
+        raise MscapError(f"{option} {path}: exists and is not a directory")
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise MscapError(f"{option} {path}: the directory is not writable")
+    return out
+
+
+def replace_file(path: str | Path, write: Callable[[Path], object]) -> Path:
+    """Call ``write(temporary)`` on a new file beside ``path`` (same suffix, so writers
+    that pick a format by it still do), then rename it to ``path``: a link named ``path``
+    is replaced, not followed. Returns ``path``."""
+    path = Path(path)
+    if path.is_dir() and not path.is_symlink():
+        raise MscapError(f"{path}: is a directory, cannot write a file there")
+    temporary = path.parent / f".mscap-{os.getpid()}-{secrets.token_hex(4)}{path.suffix}"
+    try:  # O_EXCL: a new file (never a link's target), with the umask's permissions
+        os.close(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    except OSError as exc:
+        raise MscapError(f"{path}: cannot write ({exc.strerror})") from None
+    try:
+        write(Path(temporary))
+        os.replace(temporary, path)
+    except OSError as exc:
+        raise MscapError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    finally:
+        if os.path.lexists(temporary):
+            os.unlink(temporary)
+    return path
+
+
+def file_stem(name: str) -> str:
+    """``name`` as a file stem: every character but letters, digits, ``_``, ``-``, ``+``
+    and ``.`` becomes ``_``, leading dots go, and a name longer than :data:`MAX_STEM`
+    keeps its start and gains 8 hex digits of its hash (so long names stay apart)."""
+    stem = re.sub(r"[^\w.+-]", "_", name).lstrip(".") or "_"
+    if len(stem) > MAX_STEM:
+        stem = stem[:MAX_STEM - 9] + "_" + hashlib.sha256(name.encode()).hexdigest()[:8]
+    return stem
+
+
+def file_stems(names: list[str]) -> list[str]:
+    """:func:`file_stem` of each name, made unique (``a/b`` and ``a_b`` would both be
+    ``a_b``: the later one gets ``_2``, ...) without regard to case (``A`` and ``a`` are
+    one file on some file systems)."""
+    stems, seen = [], set()
+    for name in names:
+        stem = candidate = file_stem(name)
+        n = 1
+        while candidate.lower() in seen:
+            n += 1
+            candidate = f"{stem}_{n}"
+        seen.add(candidate.lower())
+        stems.append(candidate)
+    return stems

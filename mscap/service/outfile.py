@@ -1,0 +1,196 @@
+"""A results file opened for writing: which paths may be written, one writer at a time,
+and room on the disk before each write (docs/hdf5.md, "Writing safely").
+
+- **Paths** (:func:`check_output_path`): ``mscap run -o`` and ``mscap merge -o`` never
+  write through a symbolic link (a dangling one would create its target, ``--force`` would
+  overwrite it): a link is refused with its target named, so the user can give that path.
+  Missing directories are created.
+- **One writer** (:class:`WriteLock`): the file is opened without truncation and locked
+  (``flock``, the lock HDF5 itself takes, so HDF5 tools see it too) *before* anything
+  decides what to do with its content; a file another process holds is refused, ``--force``
+  included, and left untouched.
+- **Room first** (:func:`reserve`): HDF5 is not journalled, and a write that fails half
+  way (a full disk, ``ulimit -f``, a quota) leaves groups whose headers point past the
+  end of the file. So before each run the writer allocates the run's estimated size past
+  HDF5's end of file (``posix_fallocate``); if the file system refuses, nothing of the HDF5
+  structure was touched and the job stops with the path and the free space.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import logging
+import os
+import resource
+import shutil
+from pathlib import Path
+
+from mscap.errors import StoreError, StoreFullError
+
+__all__ = ["check_output_path", "WriteLock", "reserve", "room_text"]
+
+log = logging.getLogger(__name__)
+
+#: Errors of ``flock`` that mean "this file system cannot lock", not "someone holds it".
+_NO_LOCKING = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
+
+
+def check_output_path(path) -> Path:
+    """``path`` as a file mscap may create or overwrite: not a symbolic link (dangling or
+    not) nor a directory; its missing parent directories are created.
+
+    Raises
+    ------
+    StoreError
+        A link, a directory, or a parent that cannot be created.
+    """
+    path = Path(path)
+    if path.is_symlink():
+        raise StoreError(f"{path} is a symbolic link (to {os.readlink(path)}); mscap does not write results "
+                         "through a link: give the path of the file itself")
+    if path.is_dir():
+        raise StoreError(f"{path} is a directory; give a file name, e.g. {path / 'results.h5'}")
+    parent = path.parent
+    if not parent.is_dir():
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StoreError(f"{path}: cannot create its directory {parent} ({exc.strerror})") from None
+        log.info("created directory %s", parent)
+    return path
+
+
+class WriteLock:
+    """An exclusive lock on the results file ``path`` itself, taken before anything about
+    its content is decided and held until :meth:`close`.
+
+    ``created`` says whether this call created the (empty) file; ``empty`` whether the
+    file holds nothing (new, or left empty by a writer that failed at its start).
+
+    Raises
+    ------
+    StoreError
+        Another process holds the file (``force`` only changes the wording: it never
+        overrides a lock), or the file system cannot lock (then
+        ``HDF5_USE_FILE_LOCKING=FALSE`` lets the writer go on unlocked).
+    """
+
+    def __init__(self, path, force: bool = False):
+        self.path = Path(path)
+        for _ in range(3):  # the inode changed under us (a writer that failed removed it): again
+            self.fd, self.created = _open_no_follow(self.path)
+            if self._lock(force) and self._same_inode():
+                break
+            os.close(self.fd)
+        else:
+            raise StoreError(f"{self.path}: the file was replaced while it was being opened; try again")
+        self.empty = os.fstat(self.fd).st_size == 0
+
+    def _lock(self, force: bool) -> bool:
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(self.fd)
+            raise StoreError(f"{self.path} is open for writing in another process (another mscap run?); it was "
+                             "left untouched" + ("; --force never overrides that" if force else "")) from None
+        except OSError as exc:
+            if exc.errno not in _NO_LOCKING:
+                raise
+            if os.environ.get("HDF5_USE_FILE_LOCKING", "").upper() != "FALSE":
+                self._discard()
+                raise StoreError(f"{self.path}: file locking failed ({exc.strerror}); on file systems without "
+                                 "locking set HDF5_USE_FILE_LOCKING=FALSE (and run one job per file)") from None
+            log.warning("%s: no file locking here (%s); nothing keeps a second job off the file", self.path,
+                        exc.strerror)
+        return True
+
+    def _same_inode(self) -> bool:
+        try:
+            return os.stat(self.path, follow_symlinks=False).st_ino == os.fstat(self.fd).st_ino
+        except FileNotFoundError:
+            return False
+
+    def _discard(self) -> None:
+        os.close(self.fd)
+        if self.created:
+            self.path.unlink(missing_ok=True)
+
+    def sync(self) -> None:
+        """Make every write to the file durable (``fsync``)."""
+        os.fsync(self.fd)
+
+    def remove(self) -> None:
+        """Delete the file (still locked, so no one reopened it in between) and unlock."""
+        self.path.unlink(missing_ok=True)
+        self.close()
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+def _open_no_follow(path: Path) -> tuple[int, bool]:
+    """An fd of ``path`` opened for writing without truncating it, never through a link;
+    and whether it was created here."""
+    flags = os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC
+    try:
+        return os.open(path, flags | os.O_CREAT | os.O_EXCL, 0o666), True
+    except FileExistsError:
+        pass
+    try:
+        return os.open(path, flags), False
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise StoreError(f"{path} is a symbolic link; mscap does not write results through a link") from None
+        raise StoreError(f"{path}: cannot open for writing ({exc.strerror})") from None
+
+
+def reserve(lock: WriteLock, end: int, nbytes: int) -> None:
+    """Allocate bytes ``end .. end + nbytes`` of the file (``end``: HDF5's end of the file,
+    where its next allocations go), so that the writes that follow cannot run out of room.
+
+    Raises
+    ------
+    StoreFullError
+        The file system or the process's file-size limit refuses, with the free space.
+    """
+    try:
+        os.posix_fallocate(lock.fd, end, nbytes)
+    except OSError as exc:
+        if exc.errno in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENODEV):
+            _zero_fill(lock, end, nbytes)  # no fallocate here: write zeros past the data
+            return
+        raise StoreFullError(f"{lock.path}: no room to write ({exc.strerror}): needs about "
+                             f"{_kib(nbytes)} more; {room_text(lock.path)}") from None
+
+
+def _zero_fill(lock: WriteLock, end: int, nbytes: int) -> None:
+    fd = lock.fd
+    size = os.fstat(fd).st_size
+    start = max(size, end)
+    try:
+        if end + nbytes > start:
+            os.pwrite(fd, bytes(end + nbytes - start), start)
+    except OSError as exc:
+        os.ftruncate(fd, size)
+        raise StoreFullError(f"{lock.path}: no room to write ({exc.strerror}): needs about {_kib(nbytes)} more; "
+                             f"{room_text(lock.path)}") from None
+
+
+def _kib(nbytes: float) -> str:
+    return f"{nbytes / 1024:.0f} KiB"
+
+
+def room_text(path) -> str:
+    """The free space of ``path``'s file system and the process's file-size limit, in words."""
+    path = Path(path)
+    try:
+        free = f"{_kib(shutil.disk_usage(path.parent if path.parent.exists() else '.').free)} free on its file system"
+    except OSError:
+        free = "free space unknown"
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if limit != resource.RLIM_INFINITY:
+        free += f", the file-size limit (ulimit -f) is {_kib(limit)}"
+    return free
