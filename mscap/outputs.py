@@ -15,16 +15,18 @@ Three rules, each a one-line :class:`~mscap.errors.MscapError` when it cannot ho
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import os
 import re
 import secrets
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable, Sequence
 
 from mscap.errors import MscapError
 
-__all__ = ["output_directory", "replace_file", "file_stem", "file_stems", "MAX_STEM"]
+__all__ = ["output_directory", "replace_file", "replace_text", "replace_csv", "file_stem", "file_stems",
+           "MAX_STEM"]
 
 #: Longest file stem made from a name (file systems allow 255 bytes per component, and a
 #: suffix such as ``_elastic.vtu`` and the temporary file's prefix must fit beside it).
@@ -69,6 +71,20 @@ def replace_file(path: str | Path, write: Callable[[Path], object]) -> Path:
         if os.path.lexists(temporary):
             os.unlink(temporary)
     return path
+
+
+def replace_text(path: str | Path, text: str) -> Path:
+    """:func:`replace_file` with ``text`` as the content."""
+    return replace_file(path, lambda temporary: temporary.write_text(text))
+
+
+def replace_csv(path: str | Path, rows: Iterable[Sequence]) -> Path:
+    """:func:`replace_file` with ``rows`` (the header first) as CSV."""
+    def write(temporary: Path) -> None:
+        with open(temporary, "w", newline="") as f:
+            csv.writer(f).writerows(rows)
+
+    return replace_file(path, write)
 
 
 def file_stem(name: str) -> str:

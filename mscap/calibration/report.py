@@ -3,14 +3,13 @@ per design and sequence pose), ``summary.json``, the ``errors.png`` figure and t
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 import numpy as np
 from typing import TYPE_CHECKING
 
-from mscap.outputs import output_directory, replace_file
+from mscap.outputs import output_directory, replace_csv, replace_file, replace_text
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -68,20 +67,16 @@ def write_outputs(outdir: Path, scene: Scene, scores, noise) -> None:
     cal = scene.calibration
     outdir = output_directory(outdir, "calibrate -o")
 
-    def write_table(path: Path) -> None:
-        with open(path, "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(["design", "k", "pose", *cal.parameters, "in_training_range", *ERRORS_COLUMNS,
-                        "no_signal_mean_error"])
-            for s in scores:
-                m = s.errors.summary()
-                for i, row in enumerate(cal.sequence):
-                    w.writerow([s.design.label, s.design.k, i, *[f"{x:.6g}" for x in row], int(cal.in_range[i]),
-                                *[f"{m[c][i]:.6g}" for c in ERRORS_COLUMNS], f"{s.no_signal[i]:.6g}"])
+    def rows():
+        yield ["design", "k", "pose", *cal.parameters, "in_training_range", *ERRORS_COLUMNS, "no_signal_mean_error"]
+        for s in scores:
+            m = s.errors.summary()
+            for i, row in enumerate(cal.sequence):
+                yield [s.design.label, s.design.k, i, *[f"{x:.6g}" for x in row], int(cal.in_range[i]),
+                       *[f"{m[c][i]:.6g}" for c in ERRORS_COLUMNS], f"{s.no_signal[i]:.6g}"]
 
-    text = json.dumps(summary(scene, scores, noise), indent=2) + "\n"
-    replace_file(outdir / "errors.csv", write_table)
-    replace_file(outdir / "summary.json", lambda path: path.write_text(text))
+    replace_csv(outdir / "errors.csv", rows())
+    replace_text(outdir / "summary.json", json.dumps(summary(scene, scores, noise), indent=2) + "\n")
     replace_file(outdir / "errors.png", lambda path: error_figure(path, scene, scores))
 
 

@@ -22,7 +22,6 @@ from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import ElasticState, NewtonSettings, solve_pose
 from mscap.fem.elastic.problem import ElasticError, ElasticProblem, build_problem
 from mscap.fem.petsc import LinearSolver, Operator
-from mscap.mesh.budget import check_scene
 from mscap.mesh.layered import LayeredMesh, mesh_elastic, mesh_scene
 from mscap.mesh.transfer import interpolation_matrix
 
@@ -112,8 +111,6 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
         Called with one-line progress messages.
     """
     start = time.perf_counter()
-    if mesh is None:
-        check_scene(scene)  # both meshes within memory, before either is built
     mesh = mesh or mesh_scene(scene)
     meshed = time.perf_counter()
     electrostatic.check_plates(mesh)  # a bad layout fails now, not after the elastic solves

@@ -4,7 +4,6 @@ summary and ``readout.csv``."""
 
 from __future__ import annotations
 
-import csv
 import json
 import re
 from pathlib import Path
@@ -13,7 +12,7 @@ import numpy as np
 
 from mscap.readout.array import (MAX_DEFAULT_ALL_LEADS, ReadoutError, all_patterns, check_rank, error_bound,
                                  measurement_matrix, noise_gain, simulate_readout)
-from mscap.outputs import output_directory, replace_file
+from mscap.outputs import output_directory, replace_csv, replace_text
 from mscap.readout.patterns import optimise_patterns
 from mscap.scene.calibration import NoiseModel
 
@@ -142,15 +141,7 @@ def write_outputs(report: dict, directory) -> list[Path]:
     ``readout.json`` in ``directory``."""
     directory = output_directory(directory, "readout -o")
 
-    def write_table(path: Path) -> None:
-        with open(path, "w", newline="") as f:
-            writer = csv.writer(f)
-            writer.writerow(CSV_COLUMNS)
-            for p in report["poses"]:
-                for c in p["capacitors"]:
-                    writer.writerow([p["pose"], c["capacitor"], *c["slot"]] +
-                                    [f"{c[key]:.6g}" for key in CSV_COLUMNS[4:]])
-
-    text = json.dumps(report, indent=1) + "\n"
-    return [replace_file(directory / "readout.csv", write_table),
-            replace_file(directory / "readout.json", lambda path: path.write_text(text))]
+    rows = [CSV_COLUMNS] + [[p["pose"], c["capacitor"], *c["slot"]] + [f"{c[key]:.6g}" for key in CSV_COLUMNS[4:]]
+                            for p in report["poses"] for c in p["capacitors"]]
+    return [replace_csv(directory / "readout.csv", rows),
+            replace_text(directory / "readout.json", json.dumps(report, indent=1) + "\n")]

@@ -13,7 +13,6 @@ This module owns the output directory of one ``mscap optimize`` start
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 from dataclasses import dataclass
@@ -133,34 +132,22 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
     ``OptimizeResult``) of the design scene ``scene`` to ``directory``; returns the summary.
     With a design family the summary holds the read-back bound before and after."""
     from mscap.design.readback import ReconstructionBound
-
-    from mscap.outputs import output_directory, replace_file
+    from mscap.outputs import output_directory, replace_csv, replace_text
 
     out = output_directory(directory, "optimize -o")
     final = result.layout
     bound = None if scene.design_family is None else ReconstructionBound(scene.design_family, scene.optimizer.tau_mm)
     poses = [p.name for p in scene.poses]
-    # Each file through replace_file: a link planted under its name is replaced, not followed.
-    replace_file(out / "outlines.json", lambda tmp: tmp.write_text(json.dumps(
+    # Each file replaced, not written through: a link planted under its name is not followed.
+    replace_text(out / "outlines.json", json.dumps(
         {"scene": scene.path, "min_gap_mm": scene.min_gap_mm,
-         "outlines_mm": [np.round(o, 6).tolist() for o in final.outlines]})))
-
-    def write_capacitance(tmp: Path) -> None:
-        with open(tmp, "w", newline="") as f:
-            writer = csv.writer(f)
-            writer.writerow(["pose", "stage"] + [f"C{j}_pF" for j in range(final.k)])
-            for stage, e in (("initial", result.initial), ("final", result.evaluation)):
-                for name, row in zip(poses, e.capacitance_pF):
-                    writer.writerow([name, stage] + [f"{c:.6f}" for c in row])
-
-    def write_history(tmp: Path) -> None:
-        with open(tmp, "w", newline="") as f:
-            writer = csv.writer(f)
-            writer.writerow(HISTORY_FIELDS)
-            writer.writerows(r.row() for r in result.history)
-
-    replace_file(out / "capacitance.csv", write_capacitance)
-    replace_file(out / "history.csv", write_history)
+         "outlines_mm": [np.round(o, 6).tolist() for o in final.outlines]}))
+    replace_csv(out / "capacitance.csv",
+                [["pose", "stage"] + [f"C{j}_pF" for j in range(final.k)]]
+                + [[name, stage] + [f"{c:.6f}" for c in row]
+                   for stage, e in (("initial", result.initial), ("final", result.evaluation))
+                   for name, row in zip(poses, e.capacitance_pF)])
+    replace_csv(out / "history.csv", [list(HISTORY_FIELDS)] + [r.row() for r in result.history])
     summary = {"scene": scene.path, "k": initial.k, "seed": seed, "init": init,
                "iterations": result.iterations, "reason": result.reason, "time_s": result.time_s,
                "initial_min_l1_pF": result.initial.min_l1_pF, "final_min_l1_pF": result.evaluation.min_l1_pF,
@@ -173,7 +160,7 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
                                   for name, row in zip(poses, result.evaluation.capacitance_pF)},
                "initial_capacitance_pF": {name: row.tolist()
                                           for name, row in zip(poses, result.initial.capacitance_pF)}}
-    replace_file(out / "summary.json", lambda tmp: tmp.write_text(json.dumps(summary, indent=1)))
+    replace_text(out / "summary.json", json.dumps(summary, indent=1))
     return summary
 
 

@@ -27,6 +27,7 @@ import shutil
 from pathlib import Path
 
 from mscap.errors import StoreError, StoreFullError
+from mscap.outputs import output_directory
 
 __all__ = ["check_output_path", "WriteLock", "reserve", "room_text"]
 
@@ -43,7 +44,9 @@ def check_output_path(path) -> Path:
     Raises
     ------
     StoreError
-        A link, a directory, or a parent that cannot be created.
+        A link or a directory.
+    MscapError
+        A parent that cannot be created or written (:func:`mscap.outputs.output_directory`).
     """
     path = Path(path)
     if path.is_symlink():
@@ -51,13 +54,7 @@ def check_output_path(path) -> Path:
                          "through a link: give the path of the file itself")
     if path.is_dir():
         raise StoreError(f"{path} is a directory; give a file name, e.g. {path / 'results.h5'}")
-    parent = path.parent
-    if not parent.is_dir():
-        try:
-            parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise StoreError(f"{path}: cannot create its directory {parent} ({exc.strerror})") from None
-        log.info("created directory %s", parent)
+    output_directory(path.parent, f"{path}: its directory")
     return path
 
 

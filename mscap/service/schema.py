@@ -99,7 +99,7 @@ SELECTION_ITEMS = {
     "finer_chosen_k": ("attribute int", "the k the rule picks from the best runs' finer-mesh metrics (-1: a best "
                        "run unchecked, or chosen by read-back bound)"),
     "resolution": ("attribute str", "whether the finer mesh picks the same k, with the weakest decision's margin "
-                   "and its two runs' metric errors (`Selection.verdict`)"),
+                   "on both meshes and its error bound (`Selection.verdict`)"),
 }
 
 

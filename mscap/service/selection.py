@@ -305,10 +305,10 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
     error_of = {k: abs(r.metric - r.finer_metric) / r.finer_metric if checked else math.nan
                 for k, r in best_of.items()}
     # Each decision on the finer mesh's metrics of the same runs; its change is its error.
+    finer_of = dict(zip(best_of, finer))
     compared = []
     for k, other, held in decisions(list(best_of), [score(r) for r in best_of.values()], plateau_tol):
-        finer_held = (_margin(k, other, {j: r.finer_metric for j, r in best_of.items()}, chosen, plateau_tol)
-                      if checked else math.nan)
+        finer_held = _margin(k, other, finer_of, chosen, plateau_tol) if checked else math.nan
         compared.append((k, other, held, finer_held, ERROR_BOUND * abs(held - finer_held)))
     # The weakest decision: the least margin left over its error (or the least margin, unchecked).
     weakest = min(compared, key=lambda d: d[2] - d[4] if checked else d[2], default=None)

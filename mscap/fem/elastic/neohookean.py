@@ -137,9 +137,8 @@ def element_terms(el: fem.Element, rest_inv: np.ndarray, rest_vol: np.ndarray, x
     # coefficients c1 = w vol λ and c2 = w vol (μ − λ ln J) of its outer products, and G_q.
     # (One point, P1: the outer products of that point directly, 1.3x faster.)
     batched = hessian and not project and nq > 1
-    b = np.empty((m, nq, 3, nb)) if batched else None
-    c1, c2 = np.empty((m, nq)), np.empty((m, nq))
-    gs = np.empty((m, nq, nb, 3)) if batched else None
+    if batched:
+        b, gs, c1, c2 = np.empty((m, nq, 3, nb)), np.empty((m, nq, nb, 3)), np.empty((m, nq)), np.empty((m, nq))
     hess = np.zeros((3, 3, nb, nb, m)) if hessian and not batched else None
     for q, w in enumerate(el.weights):
         G = _rest_gradients(el, rest_inv, q)
@@ -153,16 +152,18 @@ def element_terms(el: fem.Element, rest_inv: np.ndarray, rest_vol: np.ndarray, x
         log_j = np.log(J)
         energy += wv * _psi(F, log_j, mu, lam)
         grad += wv[:, None, None] * (G @ np.swapaxes(_piola(F, np.swapaxes(f_inv, 1, 2), log_j, mu, lam), 1, 2))
-        if project and hessian:
+        if not hessian:
+            continue
+        if project:
             hess += wv * _projected_block(G, f_inv, log_j, mu, lam)
-        elif hessian and not batched:
-            _add_point_hessian(hess, G, f_inv, wv, log_j, mu, lam)
         elif batched:
             b[:, q] = np.swapaxes(G @ f_inv, 1, 2)
             c1[:, q] = wv * lam
             c2[:, q] = wv * (mu - lam * log_j)
             gs[:, q] = G * np.sqrt(wv * mu)[:, None, None]
-    if b is not None:
+        else:
+            _add_point_hessian(hess, G, f_inv, wv, log_j, mu, lam)
+    if batched:
         hess = _hessian(b, c1, c2, gs)
     return ElementTerms(energy, grad, hess, min_j)
 
