@@ -26,7 +26,7 @@ import numpy as np
 
 from mscap.fem.profile import timed
 
-__all__ = ["Element", "P1", "P2", "element", "dof_table", "jacobians", "stiffness", "energy_vjp",
+__all__ = ["Element", "P1", "P2", "element", "basis_gradients", "dof_table", "jacobians", "stiffness", "energy_vjp",
            "index_type"]
 
 #: Elements per block in the vectorised kernels (bounds temporary memory, not a loop
@@ -72,16 +72,21 @@ class Element:
         return self.gradients.shape[1]
 
 
-def _make(order: int, barycentric: np.ndarray, weights: np.ndarray) -> Element:
-    lam = np.asarray(barycentric, dtype=float)  # (nq, 4)
+def basis_gradients(order: int, barycentric) -> np.ndarray:
+    """Reference gradients ``(n_points, nb, 3)`` of the basis functions at points given by
+    their barycentric coordinates ``(n_points, 4)``."""
+    lam = np.asarray(barycentric, dtype=float)
     if order == 1:
-        grads = np.broadcast_to(_DLAMBDA, (len(lam), 4, 3)).copy()
-    else:
-        # N_a = λa(2λa − 1) → (4λa − 1)∇λa;  N_ab = 4 λa λb → 4(λa ∇λb + λb ∇λa).
-        vertex = (4 * lam - 1)[:, :, None] * _DLAMBDA[None]
-        a, b = TET_EDGES[:, 0], TET_EDGES[:, 1]
-        edge = 4 * (lam[:, a, None] * _DLAMBDA[b][None] + lam[:, b, None] * _DLAMBDA[a][None])
-        grads = np.concatenate([vertex, edge], axis=1)
+        return np.broadcast_to(_DLAMBDA, (len(lam), 4, 3)).copy()
+    # N_a = λa(2λa − 1) → (4λa − 1)∇λa;  N_ab = 4 λa λb → 4(λa ∇λb + λb ∇λa).
+    vertex = (4 * lam - 1)[:, :, None] * _DLAMBDA[None]
+    a, b = TET_EDGES[:, 0], TET_EDGES[:, 1]
+    edge = 4 * (lam[:, a, None] * _DLAMBDA[b][None] + lam[:, b, None] * _DLAMBDA[a][None])
+    return np.concatenate([vertex, edge], axis=1)
+
+
+def _make(order: int, barycentric: np.ndarray, weights: np.ndarray) -> Element:
+    grads = basis_gradients(order, barycentric)
     weights = np.asarray(weights, dtype=float)
     tensor = np.einsum("q,qik,qjl->klij", weights, grads, grads)
     for array in (weights, grads, tensor):

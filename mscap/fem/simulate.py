@@ -87,7 +87,8 @@ def electro_vertices(mesh: LayeredMesh, problem: ElasticProblem, transfer, nodes
 
 def simulate(scene: Scene, order: int | None = None, elastic_order: int | None = None,
              mesh: LayeredMesh | None = None, keep_factorisation: bool = False, keep_fields: bool = True,
-             out_of_core: bool = False, progress: Callable[[str], None] | None = None) -> Simulation:
+             out_of_core: bool = False, progress: Callable[[str], None] | None = None,
+             starts: Callable[[ElasticProblem], Sequence[np.ndarray | None]] | None = None) -> Simulation:
     """Simulate every pose of ``scene``.
 
     Parameters
@@ -109,6 +110,11 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
         docs/performance.md §9).
     progress
         Called with one-line progress messages.
+    starts
+        Given the elastic problem, each pose's Newton start as a displacement (or
+        ``None``): e.g. a coarser mesh's equilibria interpolated (the finer-mesh check,
+        :func:`mscap.service.accuracy.estimate_error`); a start that fails falls back to the
+        pose's load path (:func:`equilibrium`).
     """
     start = time.perf_counter()
     mesh = mesh or mesh_scene(scene)
@@ -123,8 +129,10 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     # of the two phases, not their sum (biaxial's finer-mesh check: P2 elasticity 420 MB).
     operator = Operator(problem, out_of_core=out_of_core) if problem is not None else None
     try:
-        states, elastic_s = equilibria(sim, scene, operator, keep_factorisation=keep_factorisation,
+        warm = starts(problem) if starts is not None and problem is not None else None
+        states, elastic_s = equilibria(sim, scene, operator, warm, keep_factorisation=keep_factorisation,
                                        progress=progress)
+        del warm
     finally:  # PETSc objects free their memory only when destroyed
         if operator is not None:
             operator.destroy()

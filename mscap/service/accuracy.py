@@ -27,7 +27,7 @@ from mscap.design.history import min_pairwise_l1
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["ErrorEstimate", "finer", "estimate_error"]
+__all__ = ["ErrorEstimate", "Equilibria", "finer", "estimate_error", "out_of_core", "OUT_OF_CORE_ABOVE_BYTES"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,22 @@ def finer(scene: Scene):
     return replace(scene, mesh=mesh, elastic=elastic)
 
 
+#: Estimated peak (bytes, :mod:`mscap.mesh.budget`) above which the check keeps its factors
+#: on disk. Only C is compared, so MUMPS may factorise out of core: biaxial's check 1,116 ->
+#: 869 MB for 1.18x its time, pneumatic's 786 -> 674 MB for 1.29x (docs/performance.md §9).
+#: Every paper scene's check is estimated above it (0.97-2.5 GB), jobs/quick.toml's below
+#: (0.24 GB), where disk buys nothing but time.
+OUT_OF_CORE_ABOVE_BYTES = 500e6
+
+
+def out_of_core(scene: Scene) -> bool:
+    """Whether :func:`estimate_error` factorises ``scene`` (already :func:`finer`) out of core."""
+    from mscap.mesh import budget
+
+    sizes = (budget.estimate_electrostatic(scene), budget.estimate_elastic(scene))
+    return bool(max(size.memory_bytes for size in sizes if size is not None) > OUT_OF_CORE_ABOVE_BYTES)
+
+
 def relative_difference(coarse_pF: np.ndarray, fine_pF: np.ndarray) -> float:
     """max |C − C'| / |C'| over all entries (the finer C' as the reference)."""
     coarse, fine = np.asarray(coarse_pF, dtype=float), np.asarray(fine_pF, dtype=float)
@@ -64,15 +80,57 @@ def relative_difference(coarse_pF: np.ndarray, fine_pF: np.ndarray) -> float:
     return float(np.max(np.abs(coarse - fine) / np.abs(fine))) if fine.size else float("nan")
 
 
-def estimate_error(scene: Scene, layout, capacitance_pF: np.ndarray) -> ErrorEstimate:
+@dataclass(frozen=True)
+class Equilibria:
+    """A run's final equilibria, to start the check's Newton solves from: its elastic mesh
+    at the final rest positions (its own mesh, not the electrostatic one), the node table
+    and element order, and each pose's displacement (``None`` for a free pose). Only what
+    the interpolation needs is kept through the check, not the elastic problem (whose
+    assembly tables are 50 MB on biaxial's P2 mesh)."""
+
+    mesh: object
+    nodes: np.ndarray
+    order: int
+    displacements: tuple
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.nodes.max()) + 1
+
+    @classmethod
+    def of(cls, evaluation) -> "Equilibria | None":
+        """From a :class:`~mscap.design.pipeline.Evaluation`; ``None`` on a shared mesh
+        (keeping it would keep the whole electrostatic mesh alive through the check)."""
+        sim = evaluation.sim
+        if sim is None or sim.elastic is None or sim.transfer is None:
+            return None
+        problem = sim.elastic
+        return cls(problem.mesh, problem.nodes, problem.order, tuple(evaluation.displacements()))
+
+    def on(self, problem) -> list:
+        """The displacements interpolated at ``problem``'s rest nodes (the deformation map
+        of the coarser mesh at the finer one's material points)."""
+        from mscap.mesh.transfer import interpolation_matrix
+
+        mapping = interpolation_matrix(self, problem.rest)
+        return [None if u is None else mapping @ u for u in self.displacements]
+
+
+def estimate_error(scene: Scene, layout, capacitance_pF: np.ndarray,
+                   warm: Equilibria | None = None) -> ErrorEstimate:
     """Simulate ``layout`` on :func:`finer` ``(scene)`` and compare with
-    ``capacitance_pF`` (the same layout's capacitances at the scene's own settings)."""
+    ``capacitance_pF`` (the same layout's capacitances at the scene's own settings).
+
+    ``warm``: the run's equilibria, interpolated onto the finer mesh as Newton starts
+    (one load step instead of the pose's load path; the same equilibria to the Newton
+    tolerance, at about half the check's Newton iterations on jobs/quick.toml,
+    docs/results.md "make run's answer")."""
     from mscap.fem.simulate import simulate
 
     start = time.perf_counter()
-    # Only C is compared; the factors go to disk (biaxial's check: 1,116 -> 869 MB for 1.18x
-    # its time; pneumatic's: 786 -> 674 MB for 1.29x; docs/performance.md §9).
-    sim = simulate(replace(finer(scene), layout=layout), keep_fields=False, out_of_core=True)
+    fine_scene = replace(finer(scene), layout=layout)
+    sim = simulate(fine_scene, keep_fields=False, out_of_core=out_of_core(fine_scene),
+                   starts=None if warm is None else warm.on)
     fine = sim.capacitance_pF
     return ErrorEstimate(fine, relative_difference(capacitance_pF, fine), min_pairwise_l1(fine),
                          time.perf_counter() - start)

@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Callable
 
 from mscap.fem.simulate import release_freed_memory
 from mscap.mesh.budget import check_scene
-from mscap.service.accuracy import estimate_error, finer
+from mscap.service.accuracy import Equilibria, estimate_error, finer
 from mscap.design.readback import ReconstructionBound
 from mscap.service import farm
 from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
@@ -98,6 +98,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
             record = replace(record, bound_mm=bound.value(record.final_capacitance_pF),
                              initial_bound_mm=bound.value(record.initial_capacitance_pF))
         final = result.layout
+        equilibria = Equilibria.of(result.evaluation) if scene.multistart.error_estimate else None
         result.design.close()
         del result  # the finer mesh's check below should not add to the design's memory
         release_freed_memory()
@@ -108,7 +109,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     if not scene.multistart.error_estimate or record.pruned:
         return record
     try:
-        check = estimate_error(scene, final, record.final_capacitance_pF)
+        check = estimate_error(scene, final, record.final_capacitance_pF, equilibria)
     except Exception as exc:  # the run stands; only its accuracy is unknown
         log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
                     config.id, type(exc).__name__, exc)

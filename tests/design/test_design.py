@@ -132,6 +132,24 @@ def test_bad_optimizer_settings_name_the_key(tmp_path_factory):
         build_design(dataclasses.replace(scene, poses=scene.poses[:1]))
 
 
+def test_a_carried_warm_start_reaches_the_same_equilibria_in_fewer_newton_iterations(design):
+    """Warm starts move each equilibrium with its deformation gradient to the stepped rest
+    nodes (Evaluation.starts_at): the same J and C as from the kept displacements, and no
+    more Newton iterations on any scene (summed over the poses)."""
+    name, d = design
+    rng = np.random.default_rng(8)
+    q0 = np.full((d.n_controls, 2), 0.02)
+    e = d.evaluate(q0)
+    q1 = q0 + 0.3 * rng.uniform(-1, 1, q0.shape)
+    carried = d.evaluate(q1, warm=e)
+    kept = d.evaluate(q1, warm=e.displacements())
+    assert carried.J == pytest.approx(kept.J, rel=1e-9, abs=1e-12), name
+    assert np.allclose(carried.capacitance_pF, kept.capacitance_pF, rtol=1e-9, atol=0), name
+    assert sum(carried.newton_iterations) <= sum(kept.newton_iterations), name
+    for x in (e, carried, kept):
+        x.release()
+
+
 def test_a_released_evaluation_keeps_only_what_warm_starts_need(design):
     """After its gradient, an evaluation drops its factorisations, electrostatic fields and
     moved vertices (the optimiser keeps it beside the next trial); warm starts from it are

@@ -230,6 +230,42 @@ def test_affine_patch_test(order):
     assert np.abs(state.nodes - target).max() < 1e-10 * size
 
 
+@ORDERS
+def test_a_carried_start_is_the_deformation_at_the_moved_nodes(order):
+    # A design step moves rest nodes inside unchanged layers. For the affine map x = A X + b
+    # (the equilibrium of one material with those boundary values, the patch test above),
+    # the nodal deformation gradient is A exactly, so the start carried to moved rest nodes
+    # is A X' + b at every node: Newton has nothing left to do. Keeping the displacement
+    # instead (x = X' + u) leaves a residual of the order of (A − I) ∇δX.
+    from mscap.fem.adjoint import problem_at
+    from mscap.fem.elastic.problem import carried_displacement, nodal_deformation_gradients
+
+    problem = build_problem(grid_mesh(4, 3, 4.0, 3.0), stack(CLEAR, CLEAR, CLEAR), order)
+    a = np.array([[1.3, 0.15, 0.05], [0.0, 0.9, -0.1], [0.08, 0.0, 1.1]])
+    shift = np.array([0.3, -0.2, 0.1])
+    x = problem.rest @ a.T + shift
+    assert np.abs(nodal_deformation_gradients(problem, x) - a).max() < 1e-13
+
+    points = problem.mesh.points.copy()
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    side = ((np.abs(points - lo) < 1e-12) | (np.abs(points - hi) < 1e-12))[:, :2].any(axis=1)
+    points[~side, :2] += np.random.default_rng(5).uniform(-0.1, 0.1, size=((~side).sum(), 2))
+    moved = problem_at(problem, points)
+    carried = moved.rest + carried_displacement(problem, x, moved.rest)
+    assert np.abs(carried - (moved.rest @ a.T + shift)).max() < 1e-12
+
+    boundary = ((np.abs(moved.rest - lo) < 1e-12) | (np.abs(moved.rest - hi) < 1e-12)).any(axis=1)
+    target = moved.rest @ a.T + shift
+    iterations = {}
+    for name, start in (("carried", carried), ("kept", moved.rest + x - problem.rest)):
+        loading = Loading("patch", np.repeat(boundary[:, None], 3, axis=1), lambda t: target,
+                          guess=lambda x0, t, start=start: start)
+        state = solve_pose(moved, loading, NewtonSettings(tolerance=1e-10))
+        assert np.abs(state.nodes - target).max() < 1e-9
+        iterations[name] = state.newton_iterations
+    assert iterations["carried"] == 0 and iterations["kept"] >= 2, iterations
+
+
 @pytest.fixture(scope="module")
 def full_plate():
     """One capacitor covering a 6 × 4 mm sheet: at rest and after any in-plane affine map

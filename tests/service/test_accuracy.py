@@ -73,6 +73,46 @@ def test_estimate_error_reports_the_finer_simulation(stretch_scene):
     assert check.wall_s > 0 and math.isfinite(check.metric_pF)
 
 
+@pytest.mark.parametrize("name, disk", [("poking_cross", True), ("biaxial", True), ("glove", True),
+                                        ("quick", False), ("wrist_quick", False)])
+def test_only_large_checks_keep_their_factors_on_disk(name, disk):
+    """The check factorises out of core where memory needs it (every paper scene, within the
+    1 GB per worker of docs/performance.md §9) and in core where it does not (make run's scene)."""
+    from mscap.service.accuracy import out_of_core
+
+    assert out_of_core(finer(load_scene(f"jobs/{name}.toml"))) is disk
+
+
+def test_a_check_started_from_the_runs_equilibria_finds_the_same_equilibria_sooner(write_scene):
+    """The run's equilibria interpolated onto the finer mesh (Equilibria.on) start the
+    check's Newton solves in one load step: the same capacitances to the Newton
+    tolerance, in fewer Newton iterations (a poke and a stretch; on jobs/quick.toml's
+    best k = 2 layout the check took 7 s instead of 17-18 s, C equal to 1.7e-12)."""
+    from mscap.design.pipeline import build_design
+    from mscap.service.accuracy import Equilibria
+
+    data = copy.deepcopy(SMALL_SCENE)
+    data["mesh"] = {"edge_length_mm": 4.0, "edge_length_outline_mm": 1.0, "grading_distance_mm": 2.0}
+    data["elastic"] = {"edge_length_mm": 6.0, "edge_length_outline_mm": 3.0}
+    data["poses"] = [{"name": "pull", "kind": "stretch", "mode": "uniaxial", "stretch": 1.2, "grips": "roller"},
+                     {"name": "poke", "kind": "poke", "center_mm": [15.0, 10.0], "radius_mm": 4.0,
+                      "depth_mm": 2.0, "held_edges": ["x_min", "x_max"]}]
+    scene = load_scene(write_scene(data))
+    design = build_design(scene)
+    run = design.evaluate(design.deformer.zeros())
+    warm = Equilibria.of(run)
+    assert warm is not None and len(warm.displacements) == 2
+    cold = simulate(finer(scene), keep_fields=False)
+    hot = simulate(finer(scene), keep_fields=False, starts=warm.on)
+    np.testing.assert_allclose(hot.capacitance_pF, cold.capacitance_pF, rtol=1e-9)
+    iterations = [sum(p.state.newton_iterations for p in sim.poses) for sim in (hot, cold)]
+    assert iterations[0] < 0.7 * iterations[1], iterations
+    check = estimate_error(scene, scene.layout, run.capacitance_pF, warm)
+    np.testing.assert_allclose(check.capacitance_pF, cold.capacitance_pF, rtol=1e-9)
+    run.release()
+    design.close()
+
+
 def test_a_failed_check_leaves_nan_and_keeps_the_run(stretch_scene, monkeypatch, caplog):
     import mscap.service.multistart as ms
     from mscap.service.selection import configurations

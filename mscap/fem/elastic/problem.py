@@ -30,6 +30,7 @@ from mscap.fem.profile import timed
 from mscap.mesh.layered import LayeredMesh, tet_values
 
 __all__ = ["ElasticError", "ElasticProblem", "Assembly", "build_problem", "rest_geometry", "lame_of_tets",
+           "nodal_deformation_gradients", "carried_displacement",
            "assemble", "total_energy", "node_values", "tet_fields"]
 
 log = logging.getLogger(__name__)
@@ -256,6 +257,45 @@ def total_energy(problem: ElasticProblem, x: np.ndarray) -> tuple[float, float]:
         energy += float(e.sum())
         min_j = min(min_j, float(j.min()))
     return (energy if np.isfinite(energy) else np.inf), min_j
+
+
+def nodal_deformation_gradients(problem: ElasticProblem, x: np.ndarray) -> np.ndarray:
+    """``(n_nodes, 3, 3)`` deformation gradient at every node: each element's F = ∂x/∂X at
+    the node (the element's own basis gradients there), averaged over the node's elements.
+    Exact for an affine ``x``."""
+    gradients = _nodal_basis_gradients(problem.order)  # [node a, basis b, 3]
+    F = np.zeros((problem.n_nodes, 3, 3))
+    for start in range(0, len(problem.nodes), problem.block):
+        part = slice(start, start + problem.block)
+        nodes = problem.nodes[part]
+        G = gradients[None] @ problem.rest_inv[part][:, None]  # [m, a, b, 3] = ∇_X N_b at node a
+        local = np.einsum("mbi,mabj->maij", x[nodes], G)
+        for i in range(3):
+            for j in range(3):
+                F[:, i, j] += np.bincount(nodes.ravel(), weights=local[:, :, i, j].ravel(), minlength=problem.n_nodes)
+    count = np.bincount(problem.nodes.ravel(), minlength=problem.n_nodes)
+    return F / count[:, None, None]
+
+
+def _nodal_basis_gradients(order: int) -> np.ndarray:
+    """Reference basis gradients ``(nb, nb, 3)`` at the element's own nodes (vertices, then
+    P2 edge midpoints)."""
+    barycentric = np.eye(4)
+    if order == 2:
+        barycentric = np.concatenate([barycentric, 0.5 * barycentric[fem.TET_EDGES].sum(axis=1)])
+    return fem.basis_gradients(order, barycentric)
+
+
+def carried_displacement(problem: ElasticProblem, x: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """A pose's displacement at new rest positions ``rest`` of the same mesh, from its
+    equilibrium ``x`` at ``problem.rest``: every node keeps its place in the deformed body,
+    ``x' = x + F δX`` (``δX = rest − problem.rest``, F at the node), so the start is the old
+    deformation map evaluated at the moved node to first order. For a design step, which
+    moves nodes within unchanged layers, this is the new equilibrium up to the change of
+    discretisation; keeping the displacement instead (``x' = x + δX``) strains the body by
+    ``(F − I) ∇δX``. Returns ``x' − rest`` ``(n_nodes, 3)``."""
+    delta = rest - problem.rest
+    return x - problem.rest + np.einsum("nij,nj->ni", nodal_deformation_gradients(problem, x), delta) - delta
 
 
 def tet_fields(problem: ElasticProblem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
