@@ -73,6 +73,12 @@ class ElectrostaticError(MscapError):
     inverted tets) or its solve failed."""
 
 
+class InvertedMeshError(ElectrostaticError):
+    """Dielectric tets of the electrostatic mesh are inverted or degenerate at the deformed
+    positions: a limit of the mesh (a sliver across the elastic mesh's element faces), not
+    of the design; the optimiser remeshes when it is what holds a step back."""
+
+
 class ReadoutError(MscapError):
     """An array, a pattern set or readings that cannot give the capacitances."""
 

@@ -178,13 +178,15 @@ short="--max-iterations 2"
 #    where srun can start OpenMPI (PMIx), with srun: the two stop routes of slurm/common.sh.
 #    SLURM sends the warning up to 60 s earlier than asked, so 90 s before a 3-minute limit
 #    comes 30 to 90 s into the job.
+per_k=24
 submit_timelimit() {   # submit_timelimit LAUNCHER [SRUN_ARGS]
     sbatch --parsable --time=00:03:00 --signal=B:TERM@90 --ntasks=3 -O -o "$res/timelimit-$1-%j.out" \
-        --export=ALL,SCENE="$SCENE",OUT="$res/timelimit-$1.h5",LAUNCHER="$1",SRUN_ARGS="${2:-}",MSCAP_ARGS="--starts-per-k 8" \
+        --export=ALL,SCENE="$SCENE",OUT="$res/timelimit-$1.h5",LAUNCHER="$1",SRUN_ARGS="${2:-}",MSCAP_ARGS="--starts-per-k $per_k" \
         slurm/mscap_run.sbatch
 }
-# 8 starts for each k of the scene's range: more runs than fit before the warning.
-total=$("$VENV/bin/python" -c "import sys, tomllib; m = tomllib.load(open(sys.argv[1], 'rb'))['multistart']; print(8 * (m['k_max'] - m['k_min'] + 1))" "$SCENE")
+# 24 starts for each k of the scene's range: more runs than fit before the warning (with 8,
+# 16 runs of about 6 s each could all end before a warning 90 s in).
+total=$("$VENV/bin/python" -c "import sys, tomllib; m = tomllib.load(open(sys.argv[1], 'rb'))['multistart']; print($per_k * (m['k_max'] - m['k_min'] + 1))" "$SCENE")
 timelimit=("mpirun $(submit_timelimit mpirun)")
 if srun --mpi=list 2>&1 | grep -q pmix; then
     timelimit+=("srun $(submit_timelimit srun --mpi=pmix)")

@@ -18,8 +18,8 @@ itself makes 9° angles on the default poking mesh, so 10° alone would remesh a
 step), the sheet is remeshed from the current
 outlines (:func:`mscap.design.remesh.remesh`), each pose's displacement is interpolated onto the new elastic
 mesh for the warm start, and the L-BFGS memory restarts. On convergence (relative J
-change or gradient norm, per level) the controls double (:meth:`Design.refined`) for
-``cascade_levels`` more levels.
+change in a step or over the last ``stall_window`` steps on one mesh, or gradient norm,
+per level) the controls double (:meth:`Design.refined`) for ``cascade_levels`` more levels.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from mscap.design.feasibility import feasible_step
 from mscap.design.history import Record
 from mscap.design.pipeline import Design, DesignError, Evaluation
 from mscap.design.remesh import min_angle, needs_remesh, remesh
-from mscap.errors import GeometryError, MeshError
+from mscap.errors import GeometryError, InvertedMeshError, MeshError
 from mscap.fem.elastic.problem import ElasticError
 from mscap.fem.electrostatic import ElectrostaticError
 from mscap.fem.petsc import LinearSolveError
@@ -45,6 +45,11 @@ from mscap.geometry.layout import Layout, min_gap_mm
 __all__ = ["OptimizeResult", "optimize"]
 
 log = logging.getLogger(__name__)
+
+#: An accepted step whose line search had this many trials fail on inverted electrostatic
+#: tets was cut at least 8x by the mesh, not by J: the sheet is remeshed after it
+#: (wrist_quick: steps of 0.003-0.03 mm against 0.2-0.7 mm before, docs/optimize.md).
+MESH_LIMITED = 3
 
 #: Failures of a trial design that mean "step too long", not "bug".
 _TRIAL_ERRORS = (ElasticError, ElectrostaticError, GeometryError, LinearSolveError, MeshError)
@@ -119,6 +124,7 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
     level_gradient = float(np.linalg.norm(g))
     fresh = min_angle(design, q)
     step_length = settings.first_step_mm
+    plateau = [e.J]  # J after each accepted step since the level's start or the last remesh
 
     def record(event, step=0.0, evaluations=1):  # evaluations of this event
         angle = min_angle(design, e.q)[0]
@@ -132,6 +138,24 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
             f"evals {evaluations} newton {r.newton_iterations} angle {angle:.1f} gap {r.min_gap_mm:.3g} mm "
             f"mem {len(memory.pairs)} "
             f"t {r.time_s:.1f} s")
+
+    def remesh_here(evaluations=1):  # evaluations: the rejected trials that led here, and this one
+        nonlocal design, e, g, fresh, step_length, plateau
+        new, warm = remesh(design, e)
+        # Free the old design's solvers, meshes and skinning weights (and the old
+        # evaluation's moved meshes) before the new design's first evaluation, not after:
+        # alive beside it they were the whole-start peak (biaxial, k = 6: 944 → 701 MB).
+        design.close()
+        design, e = new, None
+        del new
+        release_freed_memory()
+        e = design.evaluate(design.deformer.zeros(), warm=warm)
+        g = _gradient(design, e)
+        memory.reset()
+        fresh = min_angle(design, e.q)
+        step_length = settings.first_step_mm
+        plateau = [e.J]  # J on the new mesh differs by its discretisation error
+        record("remesh", evaluations=evaluations)
 
     record("start")
     try:
@@ -153,13 +177,19 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
                         p *= step_length / speed
                         speed = step_length
                     cap = min(1.0, settings.max_step_mm / speed)
-                    trial, alpha, evaluations = _line_search(design, e, g, p, cap)
+                    trial, alpha, evaluations, inverted = _line_search(design, e, g, p, cap)
                     if trial is None and memory.pairs:
                         memory.reset()
                         p = -g * (settings.first_step_mm / float(np.linalg.norm(g, axis=1).max()))
-                        trial, alpha, more = _line_search(design, e, g, p, 1.0)
+                        trial, alpha, more, more_inverted = _line_search(design, e, g, p, 1.0)
                         evaluations += more
-                    if trial is None:
+                        inverted += more_inverted
+                    if trial is None and inverted and history[-1].event != "remesh":
+                        # The deformed electrostatic mesh, not the design, stopped every trial.
+                        log.info("line search: %d of %d trials inverted the electrostatic mesh; remeshing",
+                                 inverted, evaluations)
+                        remesh_here(evaluations + 1)
+                    elif trial is None:
                         converged, reason = True, "stalled"
                     else:
                         g_new = _gradient(design, trial)
@@ -168,30 +198,19 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
                         e, g = trial, g_new
                         iteration += 1
                         level_iterations += 1
+                        plateau.append(e.J)
                         step = alpha * float(np.linalg.norm(p, axis=1).max())
                         step_length = min(settings.max_step_mm, 2 * step if evaluations == 1 else step)
                         record("step", step, evaluations)
                         if checkpoint is not None and not checkpoint(history[-1]):
                             converged, reason = True, "pruned"
                         elif (change <= settings.relative_tolerance * max(abs(e.J), 1.0)
-                                or np.linalg.norm(g) <= settings.gradient_tolerance * level_gradient):
+                                or np.linalg.norm(g) <= settings.gradient_tolerance * level_gradient
+                                or _plateau(plateau, e.J, settings.stall_window, settings.stall_tolerance)):
                             converged, reason = True, "converged"
-                        elif needs_remesh(design, e.q, fresh, settings.remesh_angle_deg):
-                            new, warm = remesh(design, e)
-                            # Free the old design's solvers, meshes and skinning weights (and the
-                            # old evaluation's moved meshes) before the new design's first
-                            # evaluation, not after: alive beside it they were the whole-start
-                            # peak (biaxial, k = 6: 944 → 701 MB across a remesh).
-                            design.close()
-                            design, e = new, None
-                            del new
-                            release_freed_memory()
-                            e = design.evaluate(design.deformer.zeros(), warm=warm)
-                            g = _gradient(design, e)
-                            memory.reset()
-                            fresh = min_angle(design, e.q)
-                            step_length = settings.first_step_mm
-                            record("remesh")
+                        elif inverted >= MESH_LIMITED or needs_remesh(design, e.q, fresh, settings.remesh_angle_deg):
+                            trial = None
+                            remesh_here()
             if not converged:
                 continue
             if level >= cascade_levels or reason in ("zero gradient", "pruned"):
@@ -206,6 +225,7 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
             level_gradient = float(np.linalg.norm(g))
             fresh = min_angle(design, e.q)
             step_length = settings.first_step_mm
+            plateau = [e.J]
             record("cascade")
     except BaseException as exc:  # free the current design's solvers; a non-finite value: say where
         design.close()
@@ -213,6 +233,16 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
             raise DesignError(f"iteration {iteration + 1} (level {level}): {exc}") from exc
         raise
     return OptimizeResult(design, e, initial, tuple(history), iteration, reason, time.perf_counter() - started)
+
+
+def _plateau(values: list[float], J: float, window: int, tolerance: float) -> bool:
+    """Whether J (the last of ``values``, J after each accepted step on one mesh) has
+    fallen by less than ``tolerance`` · |J| over the last ``window`` steps (``window`` 0:
+    never). Relative to |J| alone, unlike the one-step rule's max(|J|, 1): a read-back
+    design's J is a bound of a few tenths of a millimetre."""
+    if window <= 0 or len(values) <= window:
+        return False
+    return values[-1 - window] - J <= tolerance * abs(J)
 
 
 def _gradient(design: Design, e: Evaluation) -> np.ndarray:
@@ -224,20 +254,24 @@ def _gradient(design: Design, e: Evaluation) -> np.ndarray:
 
 
 def _line_search(design: Design, e: Evaluation, g: np.ndarray, p: np.ndarray, alpha: float,
-                 max_trials: int = 8) -> tuple[Evaluation | None, float, int]:
-    """Backtracking (Armijo) from the largest feasible ``α ≤ alpha``; returns the accepted
-    evaluation (or ``None``), α and the number of evaluations."""
+                 max_trials: int = 8) -> tuple[Evaluation | None, float, int, int]:
+    """Backtracking (Armijo, halving) from the largest feasible ``α ≤ alpha``; returns the
+    accepted evaluation (or ``None``), α, the number of evaluations and how many of them
+    failed on inverted electrostatic tets. (Retries at the minimiser of a quadratic model
+    of J were measured and dropped: docs/optimize.md.)"""
     alpha = feasible_step(design, e.q, p, alpha)
     slope = float(np.vdot(g, p))
+    inverted = 0
     for trial in range(1, max_trials + 1):
         try:
             candidate = design.evaluate(e.q + alpha * p, warm=e)
         except _TRIAL_ERRORS as exc:
             log.info("line search: α = %.3g failed (%s); halving", alpha, exc)
+            inverted += isinstance(exc, InvertedMeshError)
             alpha *= 0.5
             continue
         if candidate.J <= e.J + 1e-4 * alpha * slope:
-            return candidate, alpha, trial
+            return candidate, alpha, trial, inverted
         candidate.release()
         alpha *= 0.5
-    return None, 0.0, max_trials
+    return None, 0.0, max_trials, inverted

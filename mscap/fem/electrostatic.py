@@ -30,12 +30,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from mscap.fem import elements as fem
-from mscap.errors import ElectrostaticError
+from mscap.errors import ElectrostaticError, InvertedMeshError
 from mscap.mesh.layered import (BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE_LAYER, LayeredMesh, tet_values,
                                  tet_volumes)
 from mscap.fem.petsc import LinearSolver, petsc
 
-__all__ = ["ElectrostaticError", "ElectrostaticProblem", "Capacitances", "build_problem", "check_plates",
+__all__ = ["ElectrostaticError", "InvertedMeshError", "ElectrostaticProblem", "Capacitances", "build_problem", "check_plates",
            "permittivity_of_tets", "assemble", "solve", "capacitance_vjp", "capacitance_jacobian", "maxwell_vjp"]
 
 log = logging.getLogger(__name__)
@@ -336,7 +336,7 @@ def _raise_inverted(problem: ElectrostaticProblem, x: np.ndarray, bad: np.ndarra
         vol = tet_volumes(x, problem.tets[start:start + fem.BLOCK])
         count += int((~(np.isfinite(vol) & (vol > 0))).sum())
     vol = tet_volumes(x, problem.tets[bad[:1]])[0]
-    raise ElectrostaticError(f"{count} dielectric tets are inverted or degenerate at the given "
+    raise InvertedMeshError(f"{count} dielectric tets are inverted or degenerate at the given "
                              f"positions (e.g. tet {int(bad[0])}, volume {vol:.3g} mm³)")
 
 

@@ -235,7 +235,7 @@ def capacitances(sim: Simulation, scene: Scene, states: Sequence[ElasticState | 
             try:
                 caps = electrostatic.solve(sim.electro, vertices, solver=solver)
             except ElectrostaticError as exc:
-                raise ElectrostaticError(f"pose {pose.name!r}: {exc}") from exc
+                raise type(exc)(f"pose {pose.name!r}: {exc}") from exc  # InvertedMeshError stays one
             t2 = time.perf_counter()
             if not keep_fields:
                 caps, vertices = replace(caps, potentials=None), None

@@ -529,7 +529,8 @@ def check_optimizer(path: str, optimizer: OptimizerSettings, calibration: Calibr
     for key, lo, hi, why in (("max_iterations", 1, MAX_ITERATIONS, "L-BFGS steps per level; 0 designs nothing"),
                              ("cascade_levels", 0, MAX_CASCADE_LEVELS, "each doubles the control points"),
                              ("control_spacing_mm", MIN_LENGTH_MM, MAX_LENGTH_MM, "1 µm to 10 m"),
-                             ("remesh_angle_deg", 0, 60, "no triangle has a smallest angle above 60°")):
+                             ("remesh_angle_deg", 0, 60, "no triangle has a smallest angle above 60°"),
+                             ("stall_window", 0, MAX_ITERATIONS, "accepted steps; 0 turns the plateau rule off")):
         value = getattr(optimizer, key)
         if not lo <= value <= hi:
             raise SceneError(path, f"optimizer.{key}", f"must lie in [{lo:g}, {hi:g}], got {value!r} ({why})")

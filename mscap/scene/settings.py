@@ -222,6 +222,12 @@ def auto_slabs(layers) -> int:
     return 1 if max(ratios) - min(ratios) <= 1e-12 else 0
 
 
+#: Default plateau rule of a level: J gained less than STALL_TOLERANCE · |J| over
+#: the last STALL_WINDOW accepted steps (docs/optimize.md "Stopping on a plateau").
+STALL_WINDOW = 10
+STALL_TOLERANCE = 1e-2
+
+
 @dataclass(frozen=True)
 class OptimizerSettings:
     """Design-optimisation settings (scene table ``[optimizer]``; :mod:`mscap.design.optimizer`).
@@ -241,7 +247,9 @@ class OptimizerSettings:
     doublings of the controls after the first level converges. ``control_spacing_mm``: arc
     length between control points on the outlines; ``skinning``: ``"bbw"`` or ``"harmonic"`` weights. Convergence of a level:
     J falls by less than ``relative_tolerance`` · max(|J|, 1) in a step, or ‖dJ/dq‖ drops
-    below ``gradient_tolerance`` times its value at the level's start. Steps:
+    below ``gradient_tolerance`` times its value at the level's start, or J has fallen by
+    less than ``stall_tolerance`` · |J| over the last ``stall_window`` steps on one
+    mesh (0: never; a plateau's tail of small steps, docs/optimize.md). Steps:
     steepest-descent steps start at ``first_step_mm`` (largest control displacement) and
     double while accepted whole; no step moves a control more than ``max_step_mm``.
     Remesh when a 2D angle drops below ``remesh_angle_deg`` (or below half the fresh
@@ -262,6 +270,8 @@ class OptimizerSettings:
     skinning: str = "bbw"
     gradient_tolerance: float = 1e-4
     relative_tolerance: float = 1e-4
+    stall_window: int = STALL_WINDOW
+    stall_tolerance: float = STALL_TOLERANCE
     first_step_mm: float = 1.0
     max_step_mm: float = 2.0
     remesh_angle_deg: float = 10.0

@@ -17,9 +17,10 @@ import pytest
 from mscap.cli import main
 from mscap.design.feasibility import feasible_step, max_step_triangles
 from mscap.design.history import HISTORY_FIELDS
-from mscap.design.optimizer import _LBFGS, optimize
+from mscap.design.optimizer import _LBFGS, _line_search, _plateau, optimize
 from mscap.design.pipeline import Design, build_design
 from mscap.design.remesh import remesh, resample_outline
+from mscap.errors import ElasticError, InvertedMeshError
 from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import check_layout
 from mscap.scene import load_scene
@@ -122,6 +123,98 @@ def test_optimize_decreases_J_with_remesh_and_cascade(poke_scene):
             assert after.J < before.J
     assert result.evaluation.min_l1_pF > result.initial.min_l1_pF
     check_layout(result.layout, scene.sheet_outline_mm, scene.min_gap_mm)
+
+
+def test_line_search_counts_the_trials_the_mesh_stopped(monkeypatch):
+    """Along J(α) = 1 - 2α + 10α² from α = 1 the search halves to the first α that
+    decreases J enough (Armijo, c = 1e-4): 1, 0.5, 0.25, 0.125. A trial whose deformed
+    electrostatic mesh inverts halves too, and is counted: that count decides a remesh."""
+    from mscap.design import optimizer
+
+    monkeypatch.setattr(optimizer, "feasible_step", lambda design, q, p, alpha: alpha)
+
+    class Line:
+        def __init__(self, fail=()):
+            self.tried, self.fail = [], fail
+
+        def evaluate(self, q, warm=None):
+            alpha = float(q[0, 0])
+            self.tried.append(alpha)
+            if alpha in self.fail:
+                raise InvertedMeshError("pose 'p': 1 dielectric tets are inverted")
+            return dataclasses.make_dataclass("E", [("J", float), ("q", object)], namespace={
+                "release": lambda self: None})(1 - 2 * alpha + 10 * alpha ** 2, q)
+
+    start = dataclasses.make_dataclass("E", [("J", float), ("q", object)])(1.0, np.zeros((1, 2)))
+    g, p = np.array([[-2.0, 0.0]]), np.array([[1.0, 0.0]])  # J'(0) along p: -2
+    line = Line()
+    accepted, alpha, evaluations, inverted = _line_search(line, start, g, p, 1.0)
+    assert line.tried == [1.0, 0.5, 0.25, 0.125] and evaluations == 4 and inverted == 0
+    assert accepted.J == pytest.approx(1 - 0.25 + 10 / 64)
+    line = Line(fail=(1.0, 0.5))
+    _, alpha, evaluations, inverted = _line_search(line, start, g, p, 1.0)
+    assert line.tried == [1.0, 0.5, 0.25, 0.125] and inverted == 2
+    line = Line(fail=tuple(0.5 ** n for n in range(8)))
+    assert _line_search(line, start, g, p, 1.0) == (None, 0.0, 8, 8)
+
+
+def test_plateau_compares_J_with_its_value_window_steps_back():
+    values = [10.0, 9.0, 8.95, 8.94]
+    assert _plateau(values, 8.94, window=2, tolerance=0.01)  # 9 - 8.94 = 0.06 <= 0.0894
+    assert not _plateau(values, 8.94, window=3, tolerance=0.01)  # 10 - 8.94 = 1.06
+    assert not _plateau(values, 8.94, window=4, tolerance=1.0)  # fewer steps than the window
+    assert not _plateau(values, 8.94, window=0, tolerance=1.0)  # 0: off
+    assert _plateau([0.30, 0.298], 0.298, window=1, tolerance=0.01)  # a bound of 0.3 mm: relative to |J|
+    assert not _plateau([0.30, 0.29], 0.29, window=1, tolerance=0.01)  # 3.4 %, not 0.01 of max(|J|, 1)
+
+
+def test_a_plateau_ends_each_level_after_its_window(poke_scene):
+    """stall_window = 2 with a tolerance no gain reaches (the other two rules off): each
+    level ends exactly two steps after its start or its last remesh, not at
+    max_iterations = 6; with the rule off the same run takes all 6 steps per level."""
+    scene = load_scene(poke_scene)
+
+    def run(window):
+        settings = dataclasses.replace(scene.optimizer, max_iterations=6, stall_window=window, stall_tolerance=1e6,
+                                       relative_tolerance=0.0, gradient_tolerance=0.0)
+        return [r.event for r in optimize(build_design(dataclasses.replace(scene, optimizer=settings))).history]
+
+    events = run(2)
+    assert events[-1] == "converged" and events.count("cascade") == 1, events
+    since = 0
+    for event in events[1:]:
+        if event in ("cascade", "converged"):
+            assert since == 2, events
+        since = since + 1 if event == "step" else 0
+    assert run(0).count("step") == 12
+
+
+@pytest.mark.parametrize("failures, error, events", [
+    # Every trial of the first mesh inverts its deformed electrostatic tets: remesh, go on.
+    (99, InvertedMeshError, ["start", "remesh", "step", "step", "max_iterations"]),
+    # Three trials do, the fourth (α/8) is accepted: the mesh held the step back, remesh after it.
+    (3, InvertedMeshError, ["start", "step", "remesh", "step", "max_iterations"]),
+    # A failure that is not the mesh's: the search stalls as before.
+    (99, ElasticError, ["start", "stalled"]),
+])
+def test_a_mesh_that_inverts_is_remeshed_not_stalled(poke_scene, monkeypatch, failures, error, events):
+    """wrist_quick stalled at a design where one pose's deformed electrostatic mesh inverted
+    (15 tets, 1e-4 mm³) for any step along −∇J, crawling with 0.003-0.03 mm steps and
+    ending with a read-back bound of 0.66 mm where a fresh mesh went on to 0.51 mm."""
+    design = build_design(load_scene(poke_scene))
+    evaluate, left = Design.evaluate, iter(range(failures))
+
+    def failing(self, q, warm=None):
+        if self is design and warm is not None and next(left, None) is not None:
+            raise error("pose 'p0': 15 dielectric tets are inverted or degenerate (e.g. tet 396)")
+        return evaluate(self, q, warm)
+
+    monkeypatch.setattr(Design, "evaluate", failing)
+    result = optimize(design, max_iterations=2, cascade_levels=0)
+    assert [r.event for r in result.history] == events
+    if failures == 99 and error is InvertedMeshError:
+        assert result.history[1].evaluations == 9  # the 8 failed trials and the new mesh's evaluation
+        assert result.history[-1].J < result.history[1].J  # the new mesh's steps descend
 
 
 def test_designs_remeshed_away_from_are_freed(poke_scene, monkeypatch):

@@ -297,7 +297,7 @@ def test_errors_name_the_problem(two_plates):
     problem = es.build_problem(two_plates, make_layers())
     flat = two_plates.points.copy()
     flat[:, 2] = 0.0
-    with pytest.raises(es.ElectrostaticError, match="inverted or degenerate"):
+    with pytest.raises(es.InvertedMeshError, match="inverted or degenerate"):  # an ElectrostaticError
         es.solve(problem, flat)
     with pytest.raises(es.ElectrostaticError, match="shape"):
         es.solve(problem, two_plates.points[:-1])
