@@ -28,6 +28,8 @@ def first_stop(history, window: int, tolerance: float, across_remesh: bool = Fal
     """Row of ``history`` where the plateau rule would first end a level (``None``: never);
     ``across_remesh``: the window runs on through remeshes (J before and after one is the
     same design read on two meshes)."""
+    from mscap.design.optimizer import _plateau  # the optimiser's own rule
+
     events = np.asarray(history["event"]).astype(str)
     J = np.asarray(history["J"], dtype=float)
     since: list[float] = []
@@ -36,7 +38,7 @@ def first_stop(history, window: int, tolerance: float, across_remesh: bool = Fal
             since = [J[row]]
         elif event == "step":
             since.append(J[row])
-            if len(since) > window and since[-1 - window] - J[row] <= tolerance * abs(J[row]):
+            if _plateau(since, J[row], window, tolerance):
                 return row
     return None
 

@@ -223,7 +223,7 @@ def auto_slabs(layers) -> int:
 
 
 #: Default plateau rule of a level: J gained less than STALL_TOLERANCE · |J| over
-#: the last STALL_WINDOW accepted steps (docs/optimize.md "Stopping on a plateau").
+#: the last STALL_WINDOW accepted steps (docs/optimize.md, "Cascade").
 STALL_WINDOW = 10
 STALL_TOLERANCE = 1e-2
 
