@@ -218,7 +218,12 @@ def mesh_scene(scene: Scene) -> LayeredMesh:
     from mscap.mesh.triangulate import triangulate
 
     check_fits(estimate_electrostatic(scene), scene.path)  # before gmsh: refuses what would not fit
-    mesh2d = triangulate(scene.sheet_outline_mm, scene.layout, scene.mesh)
+    return extrude_scene(scene, triangulate(scene.sheet_outline_mm, scene.layout, scene.mesh))
+
+
+def extrude_scene(scene: Scene, mesh2d: TriMesh) -> LayeredMesh:
+    """``mesh2d`` extruded through ``scene``'s layers (:func:`mesh_scene`'s second half;
+    the same mesh again from the same triangulation)."""
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer)
 
 

@@ -467,6 +467,37 @@ def test_simulate_json(write_scene, capsys):
     np.testing.assert_allclose(caps[0], rest, rtol=1e-12)
 
 
+def test_out_of_core_sets_its_own_electrostatic_mesh_aside_through_the_elastic_phase(write_scene, tmp_path,
+                                                                                      monkeypatch):
+    """Out of core (the finer-mesh check), a simulation that meshed the scene itself drops
+    the electrostatic mesh while the poses' equilibria are solved (an elastic mesh of its
+    own needs nothing of it; 79 MB of biaxial's check) and extrudes it again from its
+    triangulation: the same tets, points and capacitances as with that mesh given."""
+    import mscap.fem.simulate as simulation
+    from mscap.mesh.layered import mesh_scene
+
+    monkeypatch.setenv("MUMPS_OOC_TMPDIR", str(tmp_path))
+    data = scene_dict(
+        mesh={"edge_length_mm": 5.0, "edge_length_outline_mm": 1.0, "grading_distance_mm": 3.0},
+        poses=[{"name": "rest", "kind": "free"},
+               {"name": "pull", "kind": "stretch", "mode": "uniaxial", "stretch": 1.2, "grips": "clamp"}])
+    scene = load_scene(str(write_scene(data)))
+    seen, solve_equilibria = [], simulation.equilibria
+    monkeypatch.setattr(simulation, "equilibria", lambda sim, *a, **k: seen.append(sim.mesh) or solve_equilibria(sim, *a, **k))
+    given = mesh_scene(scene)
+    aside = simulate(scene, out_of_core=True)
+    kept = simulate(scene, out_of_core=True, mesh=given)
+    in_core = simulate(scene)
+    assert seen[0] is None and seen[1] is given and seen[2] is in_core.mesh  # only the first set it aside
+    assert aside.elastic.mesh is not aside.mesh
+    np.testing.assert_array_equal(aside.mesh.tets, given.tets)
+    np.testing.assert_array_equal(aside.mesh.points, given.points)
+    np.testing.assert_array_equal(aside.mesh.capacitor_of_tet, given.capacitor_of_tet)
+    np.testing.assert_array_equal(aside.capacitance_pF, kept.capacitance_pF)
+    np.testing.assert_allclose(aside.capacitance_pF, in_core.capacitance_pF, rtol=1e-9)  # MUMPS vs CHOLMOD
+    assert aside.capacitance_pF[1, 0] > 1.05 * aside.capacitance_pF[0, 0]
+
+
 # --- failures --------------------------------------------------------------------------
 
 FAILURES = [
@@ -600,3 +631,31 @@ def test_hessian_pattern_is_int32_and_assembles_as_with_int64(tiny, order):
     wide = replace(problem, indices=problem.indices.astype(np.int64), csr_of_block=problem.csr_of_block.astype(np.int64))
     x = problem.rest + 1e-3 * np.random.default_rng(3).normal(size=problem.rest.shape)
     np.testing.assert_array_equal(dense(wide, assemble(wide, x).hessian), dense(problem, assemble(problem, x).hessian))
+
+
+@ORDERS
+def test_blockwise_hessian_equals_one_shot_coo_sum(tiny, order, monkeypatch):
+    """The Hessian assembled a chunk of elements at a time, each chunk's 3 × 3 blocks
+    written in CSR-block order (no transposed copy: 65 MB less on biaxial's finer-mesh
+    check), is scipy's COO → CSR sum of every element Hessian at once, for any chunk size."""
+    from mscap.fem import elements as fem
+    from mscap.fem.elastic import neohookean
+
+    problem = tiny[order]
+    x = problem.rest + 1e-3 * np.random.default_rng(5).normal(size=problem.rest.shape)
+    terms = neohookean.element_terms(problem.element, problem.rest_inv, problem.rest_vol, x[problem.nodes],
+                                     problem.mu, problem.lam)
+    nb = problem.nodes.shape[1]
+    # hessian[i, k, a, b, m] = d²E / dx_ai dx_bk: row 3 node_a + i, column 3 node_b + k.
+    i, k, a, b, m = np.meshgrid(*(np.arange(n) for n in terms.hessian.shape), indexing="ij")
+    rows = 3 * problem.nodes[m, a] + i
+    cols = 3 * problem.nodes[m, b] + k
+    full = sp.coo_matrix((terms.hessian.ravel(), (rows.ravel(), cols.ravel())), shape=(problem.n_dofs,) * 2)
+    full = full.toarray()
+    scale = np.abs(full).max()
+    for block in (1, 5, 10 ** 6):  # elements per chunk: one, a few, all at once
+        monkeypatch.setattr(fem, "BLOCK", block)
+        monkeypatch.setattr("mscap.fem.elastic.problem.HESSIAN_ENTRIES_PER_BLOCK", block * 9 * nb * nb)
+        chunked = build_problem(problem.mesh, stack(), order)
+        assert chunked.block == block and len(chunked.scatter) == -(-len(chunked.nodes) // block)
+        np.testing.assert_allclose(dense(chunked, assemble(chunked, x).hessian), full, rtol=0, atol=1e-14 * scale)

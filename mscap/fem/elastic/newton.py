@@ -226,6 +226,7 @@ class _Pose:
             p = None
             try:
                 self.factorise(h)
+                h = None  # factorised (the operator holds its values): not alive through the next assembly
                 p = self.direction(g)
                 if not np.vdot(g, p) < 0 or not np.isfinite(p).all():
                     p = None
