@@ -124,7 +124,6 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
     level_gradient = float(np.linalg.norm(g))
     fresh = min_angle(design, q)
     step_length = settings.first_step_mm
-    plateau = [e.J]  # J after each accepted step since the level's start or the last remesh
 
     def record(event, step=0.0, evaluations=1):  # evaluations of this event
         angle = min_angle(design, e.q)[0]
@@ -140,7 +139,7 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
             f"t {r.time_s:.1f} s")
 
     def remesh_here(evaluations=1):  # evaluations: the rejected trials that led here, and this one
-        nonlocal design, e, g, fresh, step_length, plateau
+        nonlocal design, e, g, fresh, step_length
         new, warm = remesh(design, e)
         # Free the old design's solvers, meshes and skinning weights (and the old
         # evaluation's moved meshes) before the new design's first evaluation, not after:
@@ -154,8 +153,7 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
         memory.reset()
         fresh = min_angle(design, e.q)
         step_length = settings.first_step_mm
-        plateau = [e.J]  # J on the new mesh differs by its discretisation error
-        record("remesh", evaluations=evaluations)
+        record("remesh", evaluations=evaluations)  # the plateau window restarts: J on a new mesh differs by its error
 
     record("start")
     try:
@@ -198,7 +196,6 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
                         e, g = trial, g_new
                         iteration += 1
                         level_iterations += 1
-                        plateau.append(e.J)
                         step = alpha * float(np.linalg.norm(p, axis=1).max())
                         step_length = min(settings.max_step_mm, 2 * step if evaluations == 1 else step)
                         record("step", step, evaluations)
@@ -206,10 +203,11 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
                             converged, reason = True, "pruned"
                         elif (change <= settings.relative_tolerance * max(abs(e.J), 1.0)
                                 or np.linalg.norm(g) <= settings.gradient_tolerance * level_gradient
-                                or _plateau(plateau, e.J, settings.stall_window, settings.stall_tolerance)):
+                                or _plateau(_on_this_mesh(history), e.J, settings.stall_window,
+                                            settings.stall_tolerance)):
                             converged, reason = True, "converged"
                         elif inverted >= MESH_LIMITED or needs_remesh(design, e.q, fresh, settings.remesh_angle_deg):
-                            trial = None
+                            trial = None  # the only other reference to e: the remesh frees it
                             remesh_here()
             if not converged:
                 continue
@@ -225,7 +223,6 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
             level_gradient = float(np.linalg.norm(g))
             fresh = min_angle(design, e.q)
             step_length = settings.first_step_mm
-            plateau = [e.J]
             record("cascade")
     except BaseException as exc:  # free the current design's solvers; a non-finite value: say where
         design.close()
@@ -233,6 +230,13 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
             raise DesignError(f"iteration {iteration + 1} (level {level}): {exc}") from exc
         raise
     return OptimizeResult(design, e, initial, tuple(history), iteration, reason, time.perf_counter() - started)
+
+
+def _on_this_mesh(history: list[Record]) -> list[float]:
+    """J after each accepted step since the level's start, the last remesh or cascade
+    (their records hold the J they started from)."""
+    last = max(i for i, r in enumerate(history) if r.event != "step")
+    return [r.J for r in history[last:]]
 
 
 def _plateau(values: list[float], J: float, window: int, tolerance: float) -> bool:

@@ -35,8 +35,9 @@ from mscap.mesh.layered import (BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE
                                  tet_volumes)
 from mscap.fem.petsc import LinearSolver, petsc
 
-__all__ = ["ElectrostaticError", "InvertedMeshError", "ElectrostaticProblem", "Capacitances", "build_problem", "check_plates",
-           "permittivity_of_tets", "assemble", "solve", "capacitance_vjp", "capacitance_jacobian", "maxwell_vjp"]
+__all__ = ["ElectrostaticError", "InvertedMeshError", "ElectrostaticProblem", "Capacitances", "build_problem",
+           "check_plates", "permittivity_of_tets", "assemble", "solve", "capacitance_vjp", "capacitance_jacobian",
+           "maxwell_vjp"]
 
 log = logging.getLogger(__name__)
 
@@ -337,7 +338,7 @@ def _raise_inverted(problem: ElectrostaticProblem, x: np.ndarray, bad: np.ndarra
         count += int((~(np.isfinite(vol) & (vol > 0))).sum())
     vol = tet_volumes(x, problem.tets[bad[:1]])[0]
     raise InvertedMeshError(f"{count} dielectric tets are inverted or degenerate at the given "
-                             f"positions (e.g. tet {int(bad[0])}, volume {vol:.3g} mm³)")
+                            f"positions (e.g. tet {int(bad[0])}, volume {vol:.3g} mm³)")
 
 
 def solve(problem: ElectrostaticProblem, x: np.ndarray | None = None, maxwell: bool = False,

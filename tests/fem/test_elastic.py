@@ -483,7 +483,12 @@ def test_out_of_core_sets_its_own_electrostatic_mesh_aside_through_the_elastic_p
                {"name": "pull", "kind": "stretch", "mode": "uniaxial", "stretch": 1.2, "grips": "clamp"}])
     scene = load_scene(str(write_scene(data)))
     seen, solve_equilibria = [], simulation.equilibria
-    monkeypatch.setattr(simulation, "equilibria", lambda sim, *a, **k: seen.append(sim.mesh) or solve_equilibria(sim, *a, **k))
+
+    def equilibria(sim, *args, **kwargs):
+        seen.append(sim.mesh)  # what the elastic phase holds
+        return solve_equilibria(sim, *args, **kwargs)
+
+    monkeypatch.setattr(simulation, "equilibria", equilibria)
     given = mesh_scene(scene)
     aside = simulate(scene, out_of_core=True)
     kept = simulate(scene, out_of_core=True, mesh=given)
