@@ -20,7 +20,9 @@ def add_parser(sub) -> None:
                    help="N starts per k instead of the scene's [multistart] starts_per_k")
     p.add_argument("--prune", metavar="STEP:ETA",
                    help="prune dominated starts from STEP accepted steps on, keeping the best 1/ETA at "
-                        "each rung (0 disables; default: the scene's prune_first_step, prune_eta)")
+                        "each rung (0 disables; default: the scene's prune_first_step, prune_eta); "
+                        "envelope:EVERY: every EVERY steps (default 5) stop a start that no finished "
+                        "start's gain would lift to the best of its k (the safe rule)")
     p.add_argument("--keep-repeated-starts", action="store_true",
                    help="also run the Lloyd starts whose initial layout is an earlier start's of their k, "
                         "plate for plate (skipped by default: the same run bit for bit)")

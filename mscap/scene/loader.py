@@ -568,6 +568,12 @@ def family_grid_counts(path: str, optimizer: OptimizerSettings, calibration: Cal
     return tuple(counts)
 
 
+#: ``[multistart] prune_rule``: successive halving on ranks, or the envelope of finished paths.
+PRUNE_RULES = ("rungs", "envelope")
+#: Steps between the envelope rule's checkpoints for ``--prune envelope``.
+ENVELOPE_EVERY = 5
+
+
 def check_multistart(path: str, multistart: MultistartSettings) -> None:
     """Check ``[multistart]``: k_min ≤ k_max, starts per k within the seed scheme, a
     pruning ratio of at least 2."""
@@ -586,7 +592,10 @@ def check_multistart(path: str, multistart: MultistartSettings) -> None:
         raise SceneError(path, "multistart.lloyd_fraction", f"must lie in [0, 1], got {multistart.lloyd_fraction!r}")
     if multistart.seed > MAX_SEED:
         raise SceneError(path, "multistart.seed", f"must be <= {MAX_SEED}, got {multistart.seed!r}")
-    if multistart.prune_first_step > 0 and multistart.prune_eta < 2:
+    if multistart.prune_rule not in PRUNE_RULES:
+        raise SceneError(path, "multistart.prune_rule",
+                         f"must be one of {', '.join(map(repr, PRUNE_RULES))}, got {multistart.prune_rule!r}")
+    if multistart.prune_first_step > 0 and multistart.prune_rule == "rungs" and multistart.prune_eta < 2:
         raise SceneError(path, "multistart.prune_eta",
                          f"must be at least 2 when prune_first_step > 0 (keep the best 1/eta), "
                          f"got {multistart.prune_eta!r}")
@@ -621,7 +630,8 @@ def select_poses(scene: Scene, names: list[str]) -> Scene:
 def with_overrides(scene: Scene, starts_per_k: int | None = None, prune: str | None = None,
                    keep_repeated_starts: bool = False) -> Scene:
     """``scene`` with ``[multistart]`` values from the command line (``mscap run
-    --starts-per-k N --prune STEP:ETA --keep-repeated-starts``), checked like the file's."""
+    --starts-per-k N --prune STEP:ETA --keep-repeated-starts``; ``--prune envelope[:EVERY]``
+    for the envelope rule), checked like the file's."""
     changes = {}
     if keep_repeated_starts:
         changes["skip_repeated_starts"] = False
@@ -630,12 +640,17 @@ def with_overrides(scene: Scene, starts_per_k: int | None = None, prune: str | N
     if prune is not None:
         first, _, eta = prune.partition(":")
         try:
-            changes["prune_first_step"] = int(first)
-            if eta:
-                changes["prune_eta"] = int(eta)
+            if first == "envelope":
+                changes["prune_rule"] = "envelope"
+                changes["prune_first_step"] = int(eta) if eta else ENVELOPE_EVERY
+            else:
+                changes["prune_rule"] = "rungs"
+                changes["prune_first_step"] = int(first)
+                if eta:
+                    changes["prune_eta"] = int(eta)
         except ValueError:
             raise SceneError(scene.path, "multistart.prune_first_step",
-                             f"--prune expects STEP or STEP:ETA (integers), got {prune!r}") from None
+                             f"--prune expects STEP, STEP:ETA or envelope:EVERY (integers), got {prune!r}") from None
         if changes["prune_first_step"] < 0:
             raise SceneError(scene.path, "multistart.prune_first_step", f"must be >= 0, got {first!r}")
     if not changes:

@@ -287,7 +287,10 @@ class MultistartSettings:
     after ``prune_first_step`` accepted steps, and again after ``prune_eta`` times as many,
     a start whose score (min L1 distance, or read-back bound) is not among the best
     1/``prune_eta`` of the starts of its k at that step stops (status ``"pruned"``);
-    ``prune_first_step = 0`` (the default) never prunes. ``skip_repeated_starts``: leave
+    ``prune_first_step = 0`` (the default) never prunes. ``prune_rule = "envelope"``
+    instead stops a start, every ``prune_first_step`` steps, when even the largest gain a
+    finished start made from there would leave it below the best of its k (``prune_eta``
+    unused; the safe rule, docs/performance.md §8). ``skip_repeated_starts``: leave
     out the Lloyd starts whose initial layout is an earlier one's of their k, plate for
     plate (:func:`mscap.service.selection.repeated_starts`: the same run bit for bit)."""
 
@@ -300,6 +303,7 @@ class MultistartSettings:
     error_estimate: bool = True
     prune_first_step: int = 0
     prune_eta: int = 3
+    prune_rule: str = "rungs"
     skip_repeated_starts: bool = True
 
 

@@ -16,9 +16,10 @@ rank (no ``mpirun``) the master runs every start itself.
 A start's result depends only on the scene and its (k, seed, init): never on the rank,
 the number of ranks or the order in which runs finish — unless the scene prunes
 (``[multistart] prune_first_step``, :mod:`mscap.service.pruning`): then each start asks the
-master at its rungs whether it is still among the best of its k, and a dominated one
-stops and is stored as pruned. A start that raises is stored as failed with its error
-text; the others go on. While starts run, the master
+master at its rungs whether it is still among the best of its k (or, with ``prune_rule =
+"envelope"``, whether any path seen so far would lift it to the best of its k), and a
+dominated one stops and is stored as pruned. A start that raises is stored as failed
+with its error text; the others go on. While starts run, the master
 prints a status line of its busy workers after :data:`~mscap.service.heartbeat.HEARTBEAT_S`
 seconds without a progress line (:mod:`mscap.service.heartbeat`). SIGTERM (what SLURM sends
 at the time limit), SIGUSR1 and Ctrl-C stop the master from handing out more work; busy
@@ -41,7 +42,8 @@ from mscap.service.accuracy import Equilibria, estimate_error, finer
 from mscap.design.readback import ReconstructionBound
 from mscap.service import farm
 from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
-from mscap.service.pruning import PruneRule, Rungs, Verdict, rung_values, score, score_kind
+from mscap.service.pruning import Envelope, PruneRule, Rungs, Verdict, history_values, prune_rule, score, \
+    score_kind
 from mscap.service.selection import StartConfig, configurations, repeated_starts, select
 from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, \
     run_summary, write_run, write_selection
@@ -49,7 +51,7 @@ from mscap.service.store import failed_record, finished_ids, open_store, record_
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["run_start", "run_multistart", "stored_rungs"]
+__all__ = ["run_start", "run_multistart", "stored_table"]
 
 log = logging.getLogger(__name__)
 
@@ -92,9 +94,10 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
                                     time.perf_counter() - start, rank)
         if result.reason == "pruned":
-            record = replace(record, status="pruned", reason=verdicts[-1].reason(rule.eta))
-        if scene.design_family is not None:
-            bound = ReconstructionBound(scene.design_family, scene.optimizer.tau_mm)
+            record = replace(record, status="pruned", reason=verdicts[-1].reason(rule))
+        bound = None if scene.design_family is None else ReconstructionBound(scene.design_family,
+                                                                             scene.optimizer.tau_mm)
+        if bound is not None:
             record = replace(record, bound_mm=bound.value(record.final_capacitance_pF),
                              initial_bound_mm=bound.value(record.initial_capacitance_pF))
         final = result.layout
@@ -114,7 +117,10 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
                     config.id, type(exc).__name__, exc)
         return record
-    return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s)
+    # The bound of the same design on the finer mesh: the read-back scenes' k is checked on it
+    # as the others' is on the finer min L1 (mscap.service.selection).
+    return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s,
+                   finer_bound_mm=math.nan if bound is None else bound.value(check.capacitance_pF))
 
 
 def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
@@ -167,6 +173,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
     check_scene(scene)
     if scene.multistart.error_estimate:
         check_scene(finer(scene))
+    rule, kind = prune_rule(scene), score_kind(scene)
     store = open_store(path, scene, mpi_size=size, force=force)
     done = failed = 0
     ms = scene.multistart
@@ -192,12 +199,14 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         if skipped:
             say(f"skipped {len(skipped)} Lloyd start{'s' if len(skipped) > 1 else ''} whose initial layout repeats "
                 f"an earlier start of its k: {', '.join(skipped)}")
-        rungs = stored_rungs(store, PruneRule.from_settings(ms), score_kind(scene))
+        rungs = stored_table(store, rule, kind)
 
         def record(rec) -> None:
             nonlocal done, failed
             # Stored and fsync-ed, then /selection brought up to date, then announced.
             write_run(store, rec)
+            if rule.enabled and rec.status == "ok":  # a path that ran to its end
+                rungs.finished(rec.k, *history_values(rule, kind, rec.history))
             summaries[rec.id] = run_summary(rec)
             write_selection(store, selection())
             done += 1
@@ -226,16 +235,16 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
     return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested, "choice": choice}
 
 
-def stored_rungs(store, rule: PruneRule, kind: str) -> Rungs:
-    """The master's rung table from the runs a file already holds (a resumed job prunes
+def stored_table(store, rule: PruneRule, kind: str) -> Rungs | Envelope:
+    """The master's pruning table from the runs a file already holds (a resumed job prunes
     against every start of earlier sessions)."""
-    rungs = Rungs(rule)
     if not rule.enabled:
-        return rungs
+        return Rungs(rule)
+    table = rule.table(kind)
     for rid in finished_ids(store, failed=False):
         run = store["runs"][rid]
-        history = run["history"]
-        values = score(kind, history["J"][()], history["d"][()], history["min_l1_pF"][()])
-        rungs.add(int(run.attrs["k"]), rung_values(rule, history["iteration"][()], values,
-                                                   history["event"].asstr()[()]))
-    return rungs
+        h = run["history"]
+        history = {name: h[name][()] for name in ("iteration", "J", "d", "min_l1_pF")}
+        history["event"] = h["event"].asstr()[()]
+        table.restore(int(run.attrs["k"]), *history_values(rule, kind, history), run.attrs["status"] == "pruned")
+    return table

@@ -48,8 +48,8 @@ RUN_ATTRS = {
                       'never the best run of its k) '
                       'or "failed"'),
     "error": ("str", 'error text of a failed run ("" if ok)'),
-    "reason": ("str", 'why the optimiser stopped ("" if failed; for a pruned run the rule\'s numbers: step, J, '
-                      'threshold, peers, eta)'),
+    "reason": ("str", 'why the optimiser stopped ("" if failed; for a pruned run the rule\'s numbers: step, score, '
+                      'threshold, peers, and eta or "envelope rule")'),
     "wall_s": ("float", "wall time of the run on its worker (s)"),
     "iterations": ("int", "accepted optimiser steps (0 if failed)"),
     "rank": ("int", "MPI rank of the worker that ran it (0 without MPI)"),
@@ -61,6 +61,8 @@ RUN_ATTRS = {
     "bound_mm": ("float", "final read-back bound: soft max over the design family's grid of the Cramér–Rao "
                           "bound on the RMS per-vertex error (mm, mscap.design.readback; NaN without a design family)"),
     "initial_bound_mm": ("float", "the same for the initial layout (mm; NaN without a design family)"),
+    "finer_bound_mm": ("float", "bound_mm of the final design on the finer mesh of error_estimate (mm; NaN without "
+                                "a design family or a check, and in files written before it was stored)"),
 }
 
 #: Datasets of a run group (ragged outlines: ``points[offsets[j]:offsets[j+1]]`` is outline j).
@@ -150,6 +152,7 @@ class RunRecord:
     error_estimate_wall_s: float = math.nan
     bound_mm: float = math.nan
     initial_bound_mm: float = math.nan
+    finer_bound_mm: float = math.nan
 
     @property
     def id(self) -> str:
@@ -248,4 +251,4 @@ def run_summary(record: RunRecord) -> RunSummary:
     """What selection needs of a record (what :func:`run_summaries` reads back of it)."""
     return RunSummary(id=record.id, k=int(record.k), ok=record.status != "failed", metric=float(record.metric),
                       wall_s=float(record.wall_s), bound_mm=float(record.bound_mm), pruned=record.pruned,
-                      finer_metric=float(record.finer_metric_pF))
+                      finer_metric=float(record.finer_metric_pF), finer_bound_mm=float(record.finer_bound_mm))

@@ -123,6 +123,8 @@ class RunSummary:
     pruned: bool = False
     #: The metric of the run's final layout on the finer mesh (NaN: not checked).
     finer_metric: float = math.nan
+    #: Its read-back bound on the finer mesh (NaN: no design family, or not checked).
+    finer_bound_mm: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -152,10 +154,10 @@ class Selection:
     plateau_reached: bool
     runs_total: int
     by_bound: bool = False
-    #: The k the same rule picks from the best runs' metrics on the finer mesh (``None``
-    #: when a best run was not checked, or the choice is by read-back bound).
+    #: The k the same rule picks from the best runs' metrics (or bounds) on the finer mesh
+    #: (``None`` when a best run was not checked).
     finer_chosen_k: int | None = None
-    #: Largest relative difference of a best run's metric from its finer-mesh value.
+    #: Largest relative difference of a best run's metric (or bound) from its finer-mesh value.
     metric_error: float = math.nan
     #: The rule's weakest decision (:func:`decisions`): the two k it compares, the relative
     #: margin by which it holds, the same decision's margin on the finer mesh and the bound
@@ -189,10 +191,9 @@ class Selection:
         margin only moves from 23.4 % to 17.7 %)."""
         if self.chosen_k is None:
             return "no k chosen"
-        if self.by_bound:
-            return "resolution not checked (the choice is by read-back bound, which has no finer-mesh value)"
         if self.resolved is None:
-            return "resolution unknown: a best run has no finer-mesh check"
+            return ("resolution unknown: a best run has no finer-mesh check"
+                    + (" of its read-back bound (files before it was stored have none)" if self.by_bound else ""))
         numbers = (f"its weakest decision, k = {self.weakest[0]} against k = {self.weakest[1]}, holds by "
                    f"{_pct(self.margin)} ({_pct(self.finer_margin)} on the finer mesh, error bound "
                    f"{_pct(self.margin_error)})" if self.weakest else "only one k")
@@ -298,11 +299,15 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
     chosen = choose_k(list(best_of), [score(r) for r in best_of.values()], plateau_tol)
     chosen_run = next((s.best_run for s in per_k if s.k == chosen), None)
     valid = [s.k for s in per_k if s.best_run is not None]
-    # The same rule on the finer mesh's metrics of the same runs: is the answer resolved?
-    finer = [r.finer_metric for r in best_of.values()]
-    checked = not by_bound and bool(finer) and all(math.isfinite(m) and m > 0 for m in finer)
+    # The same rule on the finer mesh's metrics (or precisions 1/bound) of the same runs: is
+    # the answer resolved?
+    finer_value = (lambda r: r.finer_bound_mm) if by_bound else (lambda r: r.finer_metric)
+    checked = bool(best_of) and all(math.isfinite(finer_value(r)) and finer_value(r) > 0 for r in best_of.values())
+    finer = [(1.0 / r.finer_bound_mm if by_bound else r.finer_metric) if checked else math.nan
+             for r in best_of.values()]
     finer_chosen = choose_k(list(best_of), finer, plateau_tol) if checked else None
-    error_of = {k: abs(r.metric - r.finer_metric) / r.finer_metric if checked else math.nan
+    value = (lambda r: r.bound_mm) if by_bound else (lambda r: r.metric)
+    error_of = {k: abs(value(r) - finer_value(r)) / finer_value(r) if checked else math.nan
                 for k, r in best_of.items()}
     # Each decision on the finer mesh's metrics of the same runs; its change is its error.
     finer_of = dict(zip(best_of, finer))

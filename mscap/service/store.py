@@ -318,7 +318,7 @@ def write_run(store: ResultsFile, record: RunRecord) -> str:
               "iterations": int(record.iterations), "rank": int(record.rank), "metric_pF": record.metric,
               "error_estimate": float(record.error_estimate), "finer_metric_pF": float(record.finer_metric_pF),
               "error_estimate_wall_s": float(record.error_estimate_wall_s), "bound_mm": float(record.bound_mm),
-              "initial_bound_mm": float(record.initial_bound_mm)}
+              "initial_bound_mm": float(record.initial_bound_mm), "finer_bound_mm": float(record.finer_bound_mm)}
     assert set(values) == set(RUN_ATTRS)
     k = int(record.k)
     if k < 1:
@@ -380,7 +380,8 @@ def _read_run(g: h5py.Group) -> RunRecord:
                      else np.zeros((0, int(a["k"]))),
                      error_estimate_wall_s=float(a.get("error_estimate_wall_s", math.nan)),
                      bound_mm=float(a.get("bound_mm", math.nan)),
-                     initial_bound_mm=float(a.get("initial_bound_mm", math.nan)))
+                     initial_bound_mm=float(a.get("initial_bound_mm", math.nan)),
+                     finer_bound_mm=float(a.get("finer_bound_mm", math.nan)))
 
 
 def run_summaries(store: h5py.File) -> list[RunSummary]:
@@ -391,7 +392,8 @@ def run_summaries(store: h5py.File) -> list[RunSummary]:
         out.append(RunSummary(id=rid, k=int(a["k"]), ok=a["status"] != "failed", metric=float(a["metric_pF"]),
                               wall_s=float(a["wall_s"]), bound_mm=float(a.get("bound_mm", math.nan)),
                               pruned=a["status"] == "pruned",
-                              finer_metric=float(a.get("finer_metric_pF", math.nan))))
+                              finer_metric=float(a.get("finer_metric_pF", math.nan)),
+                              finer_bound_mm=float(a.get("finer_bound_mm", math.nan))))
     return out
 
 

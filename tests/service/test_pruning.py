@@ -1,5 +1,6 @@
-"""Pruning dominated starts (asynchronous successive halving): the rule on closed numbers,
-the optimiser's checkpoint, and ``mscap run --prune`` replayed run by run from the file."""
+"""Pruning dominated starts (asynchronous successive halving, and the envelope rule): the
+rules on closed numbers, the optimiser's checkpoint, and ``mscap run --prune`` replayed run
+by run from the file."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ import pytest
 from mscap.errors import SceneError
 from mscap.scene import load_scene
 from mscap.scene.loader import with_overrides
-from mscap.service.pruning import PruneRule, Rungs, rung_values, score, score_kind
+from mscap.service.pruning import (ENVELOPE_HEADROOM, Envelope, PruneRule, Rungs, goodness, history_values,
+                                   prune_rule, rung_values, score, score_kind)
 from mscap.service.store import finished_ids, read_run, read_store
 from tests.conftest import to_toml
 from tests.service.test_multistart import mscap_run, needs_mpirun, tiny_scene
@@ -41,7 +43,8 @@ def test_verdict_keeps_the_best_third():
     assert v.keep and v.threshold == 1.5 and v.peers == 6
     v = rule.verdict(3, 3, 2.5, [1.0, 2.0, 3.0, 4.0, 5.0])
     assert not v.keep and v.threshold == 2.0
-    assert v.reason(3) == "pruned at step 3: score 2.5 above 2, the best 2 of 6 starts of k = 3 at that step (eta = 3)"
+    assert v.reason(rule) == ("pruned at step 3: score 2.5 above 2, the best 2 of 6 starts of k = 3 at that step "
+                              "(eta = 3)")
 
 
 def test_the_table_sees_every_start_per_k_and_rung():
@@ -51,6 +54,80 @@ def test_the_table_sees_every_start_per_k_and_rung():
     assert rungs.values[(2, 1)] == [1.0, 2.0]
     rungs.add(2, {1: 0.5, 2: 0.4})
     assert not rungs.decide(2, 1, 1.5).keep  # best 2 of 4 are 0.5 and 1.0 now
+
+
+def test_envelope_checkpoints_every_first_step():
+    rule = PruneRule(first_step=5, envelope=True)
+    assert rule.rungs(22) == [5, 10, 15, 20]
+    assert [s for s in range(1, 23) if rule.is_rung(s)] == [5, 10, 15, 20]
+    assert isinstance(rule.table("min_l1"), Envelope) and isinstance(PruneRule(5, 3).table("min_l1"), Rungs)
+
+
+def test_envelope_stops_what_no_finished_path_would_lift_to_the_best():
+    # min L1 (pF): the score is −L1. Finished: a k = 2 start 2 → 6.6 pF from step 5 on
+    # (gain 3.3), a k = 3 start 4 → 10 pF (gain 2.5). Best of k = 2: 6.6 pF, so at step 5
+    # a k = 2 start needs 6.6 / (3.3 h) = 2 / h pF, h the headroom.
+    h = ENVELOPE_HEADROOM
+    table = Envelope(PruneRule(5, envelope=True), "min_l1")
+    assert table.decide(2, 5, -0.1).keep  # nothing finished yet: no verdict
+    table.finished(2, {5: -2.0, 10: -6.0}, -6.6)
+    table.finished(3, {5: -4.0}, -10.0)
+    v = table.decide(2, 5, -0.99 * 2 / h)
+    assert not v.keep and v.threshold == pytest.approx(-2 / h) and v.peers == 2
+    assert table.decide(2, 5, -1.01 * 2 / h).keep
+    # At step 10 only the k = 2 start informs the gain (6.6 / 6 = 1.1): needs 6 / h pF.
+    v = table.decide(2, 10, -0.99 * 6 / h)
+    assert not v.keep and v.threshold == pytest.approx(-6 / h) and v.peers == 1
+    assert table.decide(2, 15, -0.1).keep  # no finished start reached step 15
+    assert table.decide(4, 5, -0.1).keep  # k = 4 has no finished start: no best to miss
+    table.finished(3, {20: -8.0}, -7.0)  # lost L1 after step 20: the gain counts as 1
+    assert table.decide(2, 20, -6.6 / h).keep and not table.decide(2, 20, -0.99 * 6.6 / h).keep
+    v = Envelope(PruneRule(5, envelope=True), "min_l1")
+    v.finished(2, {10: -5.0}, -5.5)
+    verdict = v.decide(2, 10, -4.0)
+    assert verdict.reason(PruneRule(5, envelope=True)) == (
+        f"pruned at step 10: score -4 above {-5 / h:.6g}, from which the largest gain of 1 finished start from "
+        f"step 10 on, with headroom, would just reach the best finished start of k = 2 (envelope rule)")
+
+
+def test_envelope_on_the_bound_takes_gains_of_its_inverse():
+    # A bound falls as the design improves: 0.5 → 0.4 mm is a gain of 1.25 in 1/bound.
+    h = ENVELOPE_HEADROOM
+    table = Envelope(PruneRule(3, envelope=True), "bound")
+    table.finished(2, {3: 0.5}, 0.4)
+    v = table.decide(2, 3, 1.01 * 0.5 * h)
+    assert not v.keep and v.threshold == pytest.approx(0.5 * h)  # 0.4 × 1.25 × h
+    assert table.decide(2, 3, 0.99 * 0.5 * h).keep
+    np.testing.assert_allclose(goodness("bound", [0.5, 0.25]), [2.0, 4.0])
+    with pytest.raises(ValueError, match="needs min L1 or the bound"):
+        Envelope(PruneRule(3, envelope=True), "J")
+
+
+def test_the_envelope_refuses_a_scene_designed_by_J():
+    from dataclasses import replace
+
+    scene = with_overrides(load_scene("jobs/wrist_quick.toml"), prune="envelope")
+    assert prune_rule(scene).envelope  # the read-back bound has gains
+    by_J = replace(scene, optimizer=replace(scene.optimizer, distance="pF"))
+    assert score_kind(by_J) == "J"
+    with pytest.raises(SceneError, match='multistart.prune_rule: the envelope rule .* use prune_rule = "rungs"'):
+        prune_rule(by_J)
+    assert not prune_rule(with_overrides(by_J, prune="3:4")).envelope
+
+
+def test_a_resumed_envelope_learns_only_from_paths_that_ran_to_their_end():
+    rule = PruneRule(1, envelope=True)
+    history = {"iteration": np.array([0, 1, 2, 2]), "J": np.zeros(4), "d": np.zeros(4),
+               "min_l1_pF": np.array([1.0, 2.0, 4.0, 4.0]),
+               "event": np.array(["start", "step", "step", "max_iterations"])}
+    values, final = history_values(rule, "min_l1", history)
+    assert values == {1: -2.0, 2: -4.0} and final == -4.0
+    table = Envelope(rule, "min_l1")
+    table.restore(2, values, final, pruned=True)
+    assert table.runs == []
+    table.restore(2, values, final, pruned=False)
+    assert table.runs == [(2, {1: 2.0, 2: 4.0}, 4.0)]
+    assert not table.decide(2, 1, -1.9 / ENVELOPE_HEADROOM).keep and table.decide(2, 1, -2.0 / ENVELOPE_HEADROOM).keep
 
 
 def test_rung_values_read_the_accepted_step_of_each_rung():
@@ -79,8 +156,17 @@ def test_settings_and_overrides_are_checked(small_scene_dict, write_scene):
     changed = with_overrides(scene, starts_per_k=8, prune="5:2")
     assert (changed.multistart.starts_per_k, changed.multistart.prune_first_step,
             changed.multistart.prune_eta) == (8, 5, 2)
-    with pytest.raises(SceneError, match="--prune expects STEP or STEP:ETA"):
+    with pytest.raises(SceneError, match="--prune expects STEP, STEP:ETA or envelope:EVERY"):
         with_overrides(scene, prune="five")
+    envelope = with_overrides(scene, prune="envelope").multistart
+    assert (envelope.prune_rule, envelope.prune_first_step) == ("envelope", 5)
+    assert with_overrides(scene, prune="envelope:3").multistart.prune_first_step == 3
+    assert with_overrides(with_overrides(scene, prune="envelope"), prune="2:3").multistart.prune_rule == "rungs"
+    with pytest.raises(SceneError, match="--prune expects"):
+        with_overrides(scene, prune="envelope:x")
+    small_scene_dict["multistart"] = {"prune_rule": "median"}
+    with pytest.raises(SceneError, match="multistart.prune_rule: must be one of 'rungs', 'envelope', got 'median'"):
+        load_scene(write_scene(small_scene_dict))
     with pytest.raises(SceneError, match="multistart.prune_eta"):
         with_overrides(scene, prune="3:1")
 
@@ -179,3 +265,34 @@ def test_three_ranks_ask_the_master_at_their_rungs(tmp_path):
         if r.pruned:  # the stored numbers say why: J above the threshold of its peers
             value, threshold = (float(x) for x in r.reason.split("score ")[1].split(", the best")[0].split(" above "))
             assert value > threshold and value == pytest.approx(-r.history["min_l1_pF"][-1], rel=1e-5)
+
+
+def test_one_rank_prunes_by_the_envelope_and_resumes_with_it(tmp_path):
+    """``--prune envelope:1`` on one rank: every verdict is the master's table replayed in
+    index order from the stored histories, and a resumed job (more starts per k) learns
+    from the stored paths that ran to their end, as if it had never stopped."""
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(to_toml(tiny_scene()))
+    out = tmp_path / "envelope.h5"
+    for starts in (6, 8):
+        done = mscap_run(1, scene, out, "--k-max", "2", "--prune", "envelope:1", "--starts-per-k", str(starts))
+        assert done.returncode == 0, done.stderr
+    store = read_store(out)
+    ids = sorted(finished_ids(store), key=lambda rid: int(rid.split("_s")[1].split("_")[0]))
+    records = [read_run(store, rid) for rid in ids]
+    store.close()
+    assert len(records) == 8
+    rule = PruneRule(1, envelope=True)
+    table, expected = rule.table("min_l1"), []
+    for r in records:
+        values, final = history_values(rule, "min_l1", r.history)
+        verdict = next((v for v in (table.decide(2, s, values[s]) for s in sorted(values)) if not v.keep), None)
+        expected.append(verdict is not None)
+        if verdict is None:
+            table.finished(2, values, final)
+        else:
+            assert r.reason == verdict.reason(rule) and r.history["event"][-1] == "pruned"
+    assert [r.pruned for r in records] == expected
+    assert any(expected) and not all(expected)
+    best = max(records, key=lambda r: r.metric if not r.pruned else -1.0)
+    assert all(r.metric <= best.metric for r in records if r.pruned)  # pruned starts end below the best

@@ -213,6 +213,46 @@ def test_selection_says_whether_the_finer_mesh_picks_the_same_k():
     assert sel.resolved is None and sel.finer_chosen_k is None and sel.verdict().startswith("resolution unknown")
 
 
+def test_a_choice_by_the_read_back_bound_is_checked_on_the_finer_mesh_bound():
+    # The bound's precision 1/b decides: k = 3 (0.50 mm) against k = 4 (0.49 mm, 2 % better,
+    # under the 5 % plateau) on the run's mesh; the finer mesh reads k = 4 at 0.45 mm, 11 %
+    # better: there the rule picks k = 4.
+    def runs(finer):
+        return [RunSummary(id=run_id(k, 1, "random"), k=k, ok=True, metric=10.0 * k, wall_s=1.0, bound_mm=b,
+                           finer_bound_mm=finer[k]) for k, b in {2: 0.80, 3: 0.50, 4: 0.49}.items()]
+
+    sel = select(runs({2: 0.80, 3: 0.50, 4: 0.45}), TOL)
+    assert sel.by_bound and sel.chosen_k == 3 and sel.finer_chosen_k == 4 and sel.resolved is False
+    assert sel.metric_error == pytest.approx(0.04 / 0.45, rel=1e-12)
+    assert sel.weakest == (3, 4) and sel.margin == pytest.approx(1.05 * 0.49 / 0.50 - 1, rel=1e-12)
+    assert sel.finer_margin == pytest.approx(1.05 * 0.45 / 0.50 - 1, rel=1e-12)
+    assert sel.verdict().startswith("not resolved: on the finer mesh the rule picks k = 4")
+    # A bound that barely moves with the mesh (0.1-0.3 % on glove_quick): resolved.
+    sel = select(runs({2: 0.801, 3: 0.5005, 4: 0.4905}), TOL)
+    assert sel.chosen_k == 3 == sel.finer_chosen_k and sel.verdict().startswith("resolved:")
+    # Files written before the finer bound was stored: unknown, and it says why.
+    sel = select(runs({2: math.nan, 3: math.nan, 4: math.nan}), TOL)
+    assert sel.resolved is None and sel.verdict() == ("resolution unknown: a best run has no finer-mesh check of "
+                                                      "its read-back bound (files before it was stored have none)")
+
+
+def test_a_read_back_start_stores_its_bound_on_the_finer_mesh():
+    """``run_start`` on a scene designed for read-back: the finer-mesh bound is the scene's
+    bound of the finer capacitances (wrist_quick, no optimiser step: about 6 s)."""
+    from mscap.design.readback import ReconstructionBound, design_scene
+    from mscap.service.multistart import run_start
+
+    scene = load_scene("jobs/wrist_quick.toml")
+    record = run_start(scene, configurations(scene)[0], 0, 0, None)
+    assert record.ok and record.checked, record.error
+    designed = design_scene(scene)
+    bound = ReconstructionBound(designed.design_family, designed.optimizer.tau_mm)
+    assert record.finer_bound_mm == bound.value(record.finer_capacitance_pF)
+    assert record.bound_mm == bound.value(record.final_capacitance_pF)
+    # The bound is a ratio of signal to noise: it moves with the mesh far less than C does.
+    assert abs(record.finer_bound_mm - record.bound_mm) / record.bound_mm < 0.5 * record.error_estimate
+
+
 def _same_plates(a, b, ordered: bool) -> bool:
     if len(a.outlines) != len(b.outlines):
         return False
