@@ -296,3 +296,25 @@ def test_one_rank_prunes_by_the_envelope_and_resumes_with_it(tmp_path):
     assert any(expected) and not all(expected)
     best = max(records, key=lambda r: r.metric if not r.pruned else -1.0)
     assert all(r.metric <= best.metric for r in records if r.pruned)  # pruned starts end below the best
+
+
+@needs_mpirun
+def test_three_ranks_prune_by_the_envelope_with_its_numbers(tmp_path):
+    """Under ``mpirun -n 3`` the master learns from the starts its workers finish: every
+    pruned start's stored score is above the threshold it was told, and no pruned start
+    ever stands above the best start of its k that ran to its end."""
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(to_toml(tiny_scene()))
+    out = tmp_path / "envelope3.h5"
+    done = mscap_run(3, scene, out, "--k-max", "2", "--prune", "envelope:1", "--starts-per-k", "6")
+    assert done.returncode == 0, done.stderr
+    store = read_store(out)
+    records = [read_run(store, rid) for rid in finished_ids(store)]
+    store.close()
+    assert len(records) == 6 and {r.status for r in records} <= {"ok", "pruned"}
+    best = max(r.metric for r in records if not r.pruned)
+    for r in (r for r in records if r.pruned):
+        assert r.reason.endswith("(envelope rule)")
+        value, threshold = (float(x) for x in r.reason.split("score ")[1].split(", from which")[0].split(" above "))
+        assert value > threshold and value == pytest.approx(-r.history["min_l1_pF"][-1], rel=1e-5)
+        assert r.metric < best
