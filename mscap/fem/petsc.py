@@ -69,11 +69,11 @@ def petsc(argv: list[str] | None = None):
 #: Default solver per options prefix. The command line (and a scene's [petsc] table)
 #: override these through KSP.setFromOptions, e.g. ``-electro_ksp_type cg``.
 DEFAULTS: dict[str, dict[str, str]] = {
-    # MUMPS rather than CHOLMOD for electrostatics: with the symbolic analysis kept, its numeric
-    # refactorisation is 2.6-3.7x faster (poking, 33k unknowns: 0.035 against 0.090 s; joystick,
-    # 64k: 0.082 against 0.302 s), and one MatMatSolve for the k right-hand sides costs what
-    # CHOLMOD's k solves do (docs/performance.md §2).
-    "electro_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
+    # CHOLMOD for electrostatics. MUMPS refactorises 2.6-3.7x faster and makes a warm optimiser
+    # step 1.14-1.48x cheaper (-electro_pc_factor_mat_solver_type mumps), but its round-off moves
+    # the optimiser's paths, and on jobs/quick.toml that turned make run's "resolved" k into a
+    # "marginal" one (docs/performance.md §2): the default keeps the documented answers.
+    "electro_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "cholmod"},
     "elastic_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
     "adjoint_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
 }

@@ -63,8 +63,8 @@ MESH_BASE_BYTES = 70e6
 #: Peak resident bytes of a solve per unknown of its system, by (problem, element order),
 #: and of a solve on an empty mesh (``mscap capacitance``, P1 on the 15 scenes, P2 on the
 #: 8 quick ones, docs/size_estimate.csv; elastic: 3 x, assumed, see the module docstring).
-#: Electrostatic P2 refitted after MUMPS replaced CHOLMOD (2026-12-04): 2,408 B (2.2e3
-#: before); P1 1,856 B, within 3 % of the value kept.
+#: Electrostatic P2: 2.4e3 covers MUMPS too (-electro_pc_factor_mat_solver_type mumps:
+#: 2,408 B refitted on 2026-12-04, CHOLMOD 2.2e3; P1 1,856 B, within 3 % of 1.8e3).
 BYTES_PER_UNKNOWN = {("electrostatic", 1): 1.8e3, ("electrostatic", 2): 2.4e3,
                      ("elastic", 1): 5.4e3, ("elastic", 2): 6.6e3}
 BASE_BYTES = 140e6

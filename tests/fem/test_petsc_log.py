@@ -46,8 +46,8 @@ def test_log_view_shows_mscap_stages_and_events(scene, tmp_path):
     events = {}  # stage name -> event names with a count
     for stage, table in re.findall(r"^--- Event Stage \d+: ([\w ]+)\n(.*?)(?=^---)", out, re.MULTILINE | re.DOTALL):
         events.setdefault(stage, set()).update(re.findall(r"^(\w+) +[1-9]\d* 1\.0 ", table, re.MULTILINE))
-    # The electrostatics' k potentials go to the MUMPS factor in one MatMatSolve.
-    assert {"meshing", "assembly", "factorisation", "solve", "MatMatSolve", "MatCholFctrNum"} <= events["Main Stage"]
+    # The electrostatics' k potentials go to the factor in one MatMatSolve.
+    assert {"meshing", "assembly", "factorisation", "solve", "MatMatSolve"} <= events["Main Stage"]
     assert {"Newton", "assembly", "factorisation", "solve"} <= events["Newton"]
     assert {"adjoint", "assembly", "solve"} <= events["adjoint"]
     assert WARNING not in result.stderr  # -log_view was read
