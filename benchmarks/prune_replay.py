@@ -8,9 +8,9 @@ start stopped at a rung costs its elapsed time to that step. Per rule this print
 cost (seconds kept / seconds of the whole file; its finer-mesh checks are counted for
 the starts that finish) and, per k, how much worse the best surviving start is than the
 best start of the file, beside that run's finer-mesh error. Besides the rung rules it
-replays an envelope rule (:func:`replay_envelope`), which stops a start only when no gain
-seen so far could lift it to its k's best. ``--skip-repeats`` leaves out
-the Lloyd starts that repeat a layout (:func:`mscap.service.selection.repeated_starts`)
+replays the envelope rule (``PruneRule(..., envelope=True)``, :class:`~mscap.service.pruning.Envelope`),
+which stops a start only when no gain seen so far could lift it to its k's best.
+``--skip-repeats`` leaves out the Lloyd starts that repeat a layout (:func:`mscap.service.selection.repeated_starts`)
 from the replayed run, as the service does; the cost stays relative to the whole file.
 Example (seconds; the file from ``benchmarks/pruning.py``)::
 
@@ -32,18 +32,23 @@ RULES = ((2, 3), (2, 4), (3, 3), (3, 4), (5, 3), (5, 4), (10, 3))
 
 
 def replay(runs, kind: str, rule, leave_out=frozenset()) -> tuple[float, dict[int, float]]:
-    """Cost fraction and per-k loss of the best metric (> 0: worse) under ``rule``."""
-    from mscap.service.pruning import Rungs
+    """Cost fraction and per-k loss of the best metric (> 0: worse) under ``rule``, decided
+    by the master's own table (:meth:`mscap.service.pruning.PruneRule.table`): starts in
+    index order, largest k first, as one worker of the service runs them (the envelope
+    rule shares gains across k, so the order matters to it; the rung table is per k)."""
+    from mscap.service.pruning import history_values
 
-    rungs = Rungs(rule)
+    table = rule.table(kind)
     cost, survivors = 0.0, {}
-    for k in sorted({r.k for r in runs}):
+    for k in sorted({r.k for r in runs}, reverse=True):
         for r in sorted((r for r in runs if r.k == k and r.id not in leave_out), key=lambda r: r.seed):
-            stop = next((step for step, value in sorted(_rung_scores(rule, kind, r).items())
-                         if not rungs.decide(k, step, value).keep), None)
+            values, final = history_values(rule, kind, r.history)
+            stop = next((step for step, value in sorted(values.items()) if not table.decide(k, step, value).keep),
+                        None)
             if stop is None:
                 cost += r.wall_s + _check(r)
                 survivors.setdefault(k, []).append(r)
+                table.finished(k, values, final)
             else:
                 cost += float(r.history["time_s"][_row(r.history, stop)])
     return cost / _total(runs), {k: _loss(kind, runs, k, mine) for k, mine in survivors.items()}
@@ -69,31 +74,6 @@ def replay_synchronous(runs, kind: str, rule, leave_out=frozenset()) -> tuple[fl
     return cost / _total(runs), loss
 
 
-def replay_envelope(runs, kind: str, every: int, leave_out=frozenset()) -> tuple[float, dict[int, float]]:
-    """The same with the envelope rule (``prune_rule = "envelope"``, checkpoints every
-    ``every`` steps; :class:`mscap.service.pruning.Envelope`, the master's own table): a
-    start stops when the largest gain a finished start made from that step on would not
-    lift it to the best finished start of its k. Starts in index order, largest k first, as
-    one worker of the service runs them (gains are shared across k, so the order matters)."""
-    from mscap.service.pruning import PruneRule, history_values
-
-    rule = PruneRule(every, envelope=True)
-    table = rule.table(kind)
-    cost, survivors = 0.0, {}
-    for k in sorted({r.k for r in runs}, reverse=True):
-        for r in sorted((r for r in runs if r.k == k and r.id not in leave_out), key=lambda r: r.seed):
-            values, final = history_values(rule, kind, r.history)
-            stop = next((step for step, value in sorted(values.items()) if not table.decide(k, step, value).keep),
-                        None)
-            if stop is None:
-                cost += r.wall_s + _check(r)
-                survivors.setdefault(k, []).append(r)
-                table.finished(k, values, final)
-            else:
-                cost += float(r.history["time_s"][_row(r.history, stop)])
-    return cost / _total(runs), {k: _loss(kind, runs, k, mine) for k, mine in survivors.items()}
-
-
 def rank_correlation(runs, kind: str, step: int) -> dict[int, float]:
     """Per k, Spearman's rank correlation between the score at accepted step ``step`` and
     the final score (1: the rung ranks the starts as their ends do)."""
@@ -115,11 +95,9 @@ def rank_correlation(runs, kind: str, step: int) -> dict[int, float]:
 
 def _rung_scores(rule, kind: str, r) -> dict[int, float]:
     """A run's score (:func:`mscap.service.pruning.score`) at each rung it reached."""
-    from mscap.service.pruning import rung_values, score
+    from mscap.service.pruning import history_values
 
-    h = r.history
-    return rung_values(rule, h["iteration"], score(kind, h["J"], h["d"], h["min_l1_pF"]),
-                       np.asarray(h["event"]).astype(str))
+    return history_values(rule, kind, r.history)[0]
 
 
 def _row(history, step: int) -> int | None:
@@ -191,7 +169,7 @@ def main() -> None:
                   + " |")
     if kind != "J":
         for every in (3, 5, 10):
-            cost, loss = replay_envelope(runs, kind, every, leave_out)
+            cost, loss = replay(runs, kind, PruneRule(every, envelope=True), leave_out)
             label = f"envelope every {every} steps"
             print(f"| {label} | {cost:.2f} | " + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks)
                   + " |")
