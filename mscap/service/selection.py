@@ -301,12 +301,13 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
     valid = [s.k for s in per_k if s.best_run is not None]
     # The same rule on the finer mesh's metrics (or precisions 1/bound) of the same runs: is
     # the answer resolved?
-    finer_value = (lambda r: r.finer_bound_mm) if by_bound else (lambda r: r.finer_metric)
+    value, finer_value = ((lambda r: r.bound_mm), (lambda r: r.finer_bound_mm)) if by_bound else \
+        ((lambda r: r.metric), (lambda r: r.finer_metric))
     checked = bool(best_of) and all(math.isfinite(finer_value(r)) and finer_value(r) > 0 for r in best_of.values())
-    finer = [(1.0 / r.finer_bound_mm if by_bound else r.finer_metric) if checked else math.nan
+    # The finer mesh's scores, as ``score`` reads the run mesh's (precision 1/bound, or the metric).
+    finer = [(1.0 / finer_value(r) if by_bound else finer_value(r)) if checked else math.nan
              for r in best_of.values()]
     finer_chosen = choose_k(list(best_of), finer, plateau_tol) if checked else None
-    value = (lambda r: r.bound_mm) if by_bound else (lambda r: r.metric)
     error_of = {k: abs(value(r) - finer_value(r)) / finer_value(r) if checked else math.nan
                 for k, r in best_of.items()}
     # Each decision on the finer mesh's metrics of the same runs; its change is its error.
