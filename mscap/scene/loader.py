@@ -652,7 +652,8 @@ def with_overrides(scene: Scene, starts_per_k: int | None = None, prune: str | N
             raise SceneError(scene.path, "multistart.prune_first_step",
                              f"--prune expects STEP, STEP:ETA or envelope:EVERY (integers), got {prune!r}") from None
         if changes["prune_first_step"] < 0:
-            raise SceneError(scene.path, "multistart.prune_first_step", f"must be >= 0, got {first!r}")
+            raise SceneError(scene.path, "multistart.prune_first_step",
+                             f"must be >= 0, got {changes['prune_first_step']} (--prune {prune})")
     if not changes:
         return scene
     multistart = replace(scene.multistart, **changes)

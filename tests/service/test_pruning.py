@@ -164,6 +164,8 @@ def test_settings_and_overrides_are_checked(small_scene_dict, write_scene):
     assert with_overrides(with_overrides(scene, prune="envelope"), prune="2:3").multistart.prune_rule == "rungs"
     with pytest.raises(SceneError, match="--prune expects"):
         with_overrides(scene, prune="envelope:x")
+    with pytest.raises(SceneError, match=r"multistart.prune_first_step: must be >= 0, got -1 \(--prune envelope:-1\)"):
+        with_overrides(scene, prune="envelope:-1")
     small_scene_dict["multistart"] = {"prune_rule": "median"}
     with pytest.raises(SceneError, match="multistart.prune_rule: must be one of 'rungs', 'envelope', got 'median'"):
         load_scene(write_scene(small_scene_dict))
