@@ -1,50 +1,221 @@
-"""Can an optimiser step reuse the previous design's factorisation? (issue 18, part 1)
+"""Can an optimiser step reuse a factorisation? (issue 18, part 1)
 
-For each pose of a scene this script factorises the electrostatic matrix at the initial
-layout. It then solves the matrix of a design 0.1 mm along −∇J in two ways: by CG
-preconditioned with that old factorisation, and by a fresh factorisation plus solves
-(what mscap does today). It prints the CG iterations per right-hand side, the agreement
-of the two solutions, and both times. Run::
+A design step moves the rest geometry by about a tenth of a millimetre, so every pose's
+electrostatic matrix changes a little (|ΔA|/|A| ≈ 1-5 % on poking). This script compares,
+per pose, the ways to solve the k potentials of the new matrix:
 
-    .venv/bin/python benchmarks/warm_reuse.py [jobs/poking_cross.toml]
+- ``refactor cholmod`` / ``refactor mumps``: a numeric refactorisation with the symbolic
+  analysis kept (what :class:`mscap.fem.petsc.LinearSolver` does) and one MatMatSolve;
+- ``stale <solver>``: CG on all k columns in lockstep, preconditioned by the previous
+  design's factorisation of the same pose (one MatMatSolve per iteration; this needs one
+  kept factorisation per pose between steps);
+- ``shared <solver>``: the same CG, preconditioned by the factorisation of the design's
+  first pose (one factorisation per design, none kept between steps);
+- ``hypre`` / ``icc``: CG with BoomerAMG or incomplete Cholesky, column by column.
+
+CG stops at ``--rtol`` per column. The capacitance C = φᵀKφ is variational, so its error
+is quadratic in the potential's: the table prints the worst relative C error against the
+direct solve. One BLAS thread (CHOLMOD's supernodes halve their time on two threads,
+which an optimiser worker does not have). Run::
+
+    .venv/bin/python benchmarks/warm_reuse.py [jobs/poking.toml] [--rtol 1e-8] [--repeats 3]
 """
+
+from __future__ import annotations
+
+import argparse
+import os
 import sys
+import time
 from pathlib import Path
 
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):  # one core per process, as a worker
+    os.environ[_var] = "1"
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import time, numpy as np, scipy.sparse as sp
-from mscap import load_scene, build_design
-from mscap.fem import electrostatic
-from mscap.fem.petsc import petsc, LinearSolver
+
+import numpy as np  # noqa: E402
+import scipy.sparse as sp  # noqa: E402
+
+from mscap import build_design, load_scene  # noqa: E402
+from mscap.fem import electrostatic  # noqa: E402
+from mscap.fem.petsc import petsc  # noqa: E402
+
 PETSc = petsc()
-scene = load_scene(sys.argv[1] if len(sys.argv) > 1 else "jobs/poking_cross.toml")
-d = build_design(scene)
-e0 = d.evaluate(d.deformer.zeros())
-g = d.gradient(e0)
-q1 = -0.1 * g / np.abs(g).max()   # a 0.1 mm step, as an optimiser step
-e1 = d.evaluate(q1, warm=e0)
-for i in range(len(scene.poses)):
-    p = e0.sim.electro
-    def kff(sim, res):
-        data = electrostatic.assemble(sim.electro, res.vertices)
-        pr = sim.electro
-        A = sp.csr_matrix((data[pr.ff_entries], pr.ff_indices, pr.ff_indptr), shape=(len(pr.free),) * 2)
-        coupling = np.bincount(pr.fd_target, weights=data[pr.fd_entries], minlength=len(pr.free) * 2 * pr.k)
-        return A, -coupling.reshape(len(pr.free), 2 * pr.k)[:, pr.k:]
-    A0, _ = kff(e0.sim, e0.sim.poses[i]); A1, b1 = kff(e1.sim, e1.sim.poses[i])
-    def mat(A):
-        A = A.tocsr(); m = PETSc.Mat().createAIJWithArrays(A.shape, (A.indptr.astype(PETSc.IntType), A.indices.astype(PETSc.IntType), A.data.copy())); m.setOption(PETSc.Mat.Option.SPD, True); return m
-    M0, M1 = mat(A0), mat(A1)
-    t = time.perf_counter(); direct = LinearSolver("electro_"); direct.set_csr(A1, spd=True); x_direct = direct.solve(b1); t_direct = time.perf_counter() - t
-    ksp = PETSc.KSP().create(PETSc.COMM_SELF); ksp.setType("cg"); ksp.getPC().setType("cholesky"); ksp.getPC().setFactorSolverType("cholmod")
-    ksp.setOperators(M0); ksp.setUp()   # factor of the previous design (kept)
-    ksp.setOperators(M1, M0); ksp.setTolerances(rtol=1e-10)
-    its, t = [], time.perf_counter()
-    xs = []
-    for j in range(b1.shape[1]):
-        b = M1.createVecLeft(); b.setArray(b1[:, j]); x = M1.createVecRight(); ksp.solve(b, x); its.append(ksp.getIterationNumber()); xs.append(x.getArray().copy())
-    t_pcg = time.perf_counter() - t
-    err = max(np.abs(np.array(xs).T - x_direct).max() / np.abs(x_direct).max(), 0)
-    print(f"pose {i}: n = {A1.shape[0]}, k = {b1.shape[1]}, PCG iterations {its}, rel err {err:.1e}; "
-          f"fresh factorisation + solves {t_direct:.3f} s, PCG with the old factor {t_pcg:.3f} s")
-    ksp.destroy(); direct.destroy()
+
+
+def electrostatic_system(problem, vertices):
+    """The free-free matrix and the k right-hand sides (top plates at 1 V) at ``vertices``."""
+    data = electrostatic.assemble(problem, vertices)
+    n_free, k = len(problem.free), problem.k
+    matrix = sp.csr_matrix((data[problem.ff_entries], problem.ff_indices, problem.ff_indptr), shape=(n_free, n_free))
+    coupling = np.bincount(problem.fd_target, weights=data[problem.fd_entries], minlength=n_free * 2 * k)
+    return matrix, -coupling.reshape(n_free, 2 * k)[:, k:]
+
+
+def petsc_matrix(matrix):
+    csr = matrix.tocsr()
+    mat = PETSc.Mat().createAIJWithArrays(csr.shape, (csr.indptr.astype(PETSc.IntType),
+                                                      csr.indices.astype(PETSc.IntType), csr.data.copy()),
+                                          comm=PETSc.COMM_SELF)
+    mat.setOption(PETSc.Mat.Option.SPD, True)
+    return mat
+
+
+class Factor:
+    """A Cholesky factorisation of one matrix, applied to a block of columns at once."""
+
+    def __init__(self, matrix, package: str):
+        self.mat = petsc_matrix(matrix)
+        self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+        self.ksp.setType("preonly")
+        self.ksp.getPC().setType("cholesky")
+        self.ksp.getPC().setFactorSolverType(package)
+        self.ksp.setOperators(self.mat)
+        self.ksp.setUp()
+
+    def refactor(self, matrix) -> None:
+        """New values on the same pattern: numeric factorisation only."""
+        csr = matrix.tocsr()
+        self.mat.setValuesCSR(csr.indptr.astype(PETSc.IntType), csr.indices.astype(PETSc.IntType), csr.data)
+        self.mat.assemble()
+        self.ksp.setOperators(self.mat)
+        self.ksp.setUp()
+
+    def apply(self, columns: np.ndarray) -> np.ndarray:
+        n, m = columns.shape
+        b = PETSc.Mat().createDense((n, m), array=np.asfortranarray(columns), comm=PETSc.COMM_SELF)
+        x = PETSc.Mat().createDense((n, m), comm=PETSc.COMM_SELF)
+        x.setUp()
+        self.ksp.getPC().getFactorMatrix().matSolve(b, x)
+        out = np.array(x.getDenseArray(), copy=True)
+        b.destroy()
+        x.destroy()
+        return out
+
+    def destroy(self) -> None:
+        self.ksp.destroy()
+        self.mat.destroy()
+
+
+def lockstep_cg(matrix, rhs, factor: Factor, rtol: float, max_iterations: int = 100):
+    """CG on every column at once, preconditioned by ``factor``: (solution, iterations)."""
+    x = np.zeros_like(rhs)
+    residual = rhs.copy()
+    z = factor.apply(residual)
+    direction = z.copy()
+    rz = np.einsum("ij,ij->j", residual, z)
+    limit = rtol * np.linalg.norm(rhs, axis=0)
+    for iteration in range(max_iterations):
+        if (np.linalg.norm(residual, axis=0) <= limit).all():
+            return x, iteration
+        q = matrix @ direction
+        alpha = rz / np.einsum("ij,ij->j", direction, q)
+        x += alpha * direction
+        residual -= alpha * q
+        z = factor.apply(residual)
+        rz_new = np.einsum("ij,ij->j", residual, z)
+        direction = z + (rz_new / rz) * direction
+        rz = rz_new
+    raise RuntimeError(f"lockstep CG did not reach rtol {rtol:g} in {max_iterations} iterations")
+
+
+def iterative(matrix, rhs, pc_type: str, rtol: float):
+    """CG with a PETSc preconditioner, one column after the other: (solution, iterations)."""
+    mat = petsc_matrix(matrix)
+    ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+    ksp.setType("cg")
+    ksp.getPC().setType(pc_type)
+    ksp.setTolerances(rtol=rtol, atol=0.0, max_it=2000)
+    ksp.setOperators(mat)
+    b, x = mat.createVecLeft(), mat.createVecRight()
+    out, iterations = np.empty_like(rhs), 0
+    for j in range(rhs.shape[1]):
+        b.setArray(rhs[:, j])
+        x.set(0.0)
+        ksp.solve(b, x)
+        iterations = max(iterations, ksp.getIterationNumber())
+        out[:, j] = x.getArray()
+    ksp.destroy()
+    mat.destroy()
+    return out, iterations
+
+
+def capacitance_error(matrix, x, reference) -> float:
+    """Worst relative energy-norm error² of the columns: C's relative error (variational)."""
+    error = x - reference
+    return float(np.max(np.einsum("ij,ij->j", error, matrix @ error)
+                        / np.einsum("ij,ij->j", reference, matrix @ reference)))
+
+
+def best_of(repeats: int, function):
+    """(the fastest wall time of ``repeats`` calls, the last result)."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = function()
+        times.append(time.perf_counter() - start)
+    return min(times), result
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("scene", nargs="?", default="jobs/poking.toml")
+    parser.add_argument("--rtol", type=float, default=1e-8, help="CG tolerance per column (default 1e-8)")
+    parser.add_argument("--step-mm", type=float, default=0.1, help="largest control move of the step (default 0.1)")
+    parser.add_argument("--repeats", type=int, default=3, help="time each way as the best of this many (default 3)")
+    args = parser.parse_args(argv)
+
+    scene = load_scene(args.scene)
+    design = build_design(scene)
+    before = design.evaluate(design.deformer.zeros())
+    gradient = design.gradient(before)
+    after = design.evaluate(-args.step_mm * gradient / np.abs(gradient).max(), warm=before)
+    old = [electrostatic_system(before.sim.electro, pose.vertices) for pose in before.sim.poses]
+    new = [electrostatic_system(after.sim.electro, pose.vertices) for pose in after.sim.poses]
+    print(f"{scene.name}: {len(new)} poses, {new[0][0].shape[0]} unknowns, k = {new[0][1].shape[1]}, "
+          f"|ΔA|/|A| = {max(abs(n[0] - o[0]).sum() / abs(o[0]).sum() for n, o in zip(new, old)):.1e}, "
+          f"CG rtol {args.rtol:g}, best of {args.repeats}")
+
+    rows: dict[str, list] = {}
+    for package in ("cholmod", "mumps"):
+        kept = [Factor(matrix, package) for matrix, _ in old]
+        for pose, ((matrix, rhs), factor) in enumerate(zip(new, kept)):
+            direct = Factor(old[pose][0], package)
+            wall, x = best_of(args.repeats, lambda: (direct.refactor(matrix), direct.apply(rhs))[1])
+            rows.setdefault(f"refactor {package}", []).append((wall, 0, 0.0))
+            if package == "mumps":  # the reference of the C errors
+                rows.setdefault("_reference", []).append(x)
+            direct.destroy()
+            wall, (y, its) = best_of(args.repeats, lambda: lockstep_cg(matrix, rhs, factor, args.rtol))
+            rows.setdefault(f"stale {package}", []).append((wall, its, y))
+        shared = None
+        for pose, (matrix, rhs) in enumerate(new):
+            if pose == 0:
+                shared = Factor(matrix, package)
+                continue
+            wall, (y, its) = best_of(args.repeats, lambda: lockstep_cg(matrix, rhs, shared, args.rtol))
+            rows.setdefault(f"shared {package}", []).append((wall, its, y))
+        shared.destroy()
+        for factor in kept:
+            factor.destroy()
+    for pc_type in ("hypre", "icc"):
+        for matrix, rhs in new:
+            wall, (y, its) = best_of(1, lambda: iterative(matrix, rhs, pc_type, args.rtol))
+            rows.setdefault(pc_type, []).append((wall, its, y))
+
+    references = rows.pop("_reference")
+    print(f"{'way':<18} {'per pose (ms)':>14} {'CG iterations':>14} {'worst C error':>14}")
+    for way, entries in rows.items():
+        offset = len(references) - len(entries)  # "shared" skips the first pose
+        errors = [capacitance_error(new[i + offset][0], y, references[i + offset])
+                  for i, (_, _, y) in enumerate(entries) if not isinstance(y, float)]
+        walls = [e[0] * 1e3 for e in entries]
+        iterations = [e[1] for e in entries]
+        print(f"{way:<18} {np.mean(walls):>8.0f} ({min(walls):.0f}-{max(walls):.0f}) "
+              f"{'' if not max(iterations) else f'{min(iterations)}-{max(iterations)}':>14} "
+              f"{(f'{max(errors):.1e}' if errors else '(direct)'):>14}")
+
+
+if __name__ == "__main__":
+    main()

@@ -69,11 +69,11 @@ def petsc(argv: list[str] | None = None):
 #: Default solver per options prefix. The command line (and a scene's [petsc] table)
 #: override these through KSP.setFromOptions, e.g. ``-electro_ksp_type cg``.
 DEFAULTS: dict[str, dict[str, str]] = {
-    # CHOLMOD for electrostatics. MUMPS refactorises 2.6-3.7x faster and makes a warm optimiser
-    # step 1.14-1.48x cheaper (-electro_pc_factor_mat_solver_type mumps), but its round-off moves
-    # the optimiser's paths, and on jobs/quick.toml that turned make run's "resolved" k into a
-    # "marginal" one (docs/performance.md §2): the default keeps the documented answers.
-    "electro_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "cholmod"},
+    # MUMPS for electrostatics: with the symbolic analysis kept it refactorises in 0.1-0.2x its first
+    # factorisation (CHOLMOD: 0.7x), 2.3x cheaper than CHOLMOD per pose, and cheaper than CG on the
+    # previous design's factor too (docs/performance.md §2). -electro_pc_factor_mat_solver_type
+    # cholmod gives the earlier default (faster for a single configuration: no METIS analysis).
+    "electro_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
     "elastic_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
     "adjoint_": {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"},
 }
@@ -149,7 +149,7 @@ class LinearSolver:
         pc.setType(defaults.get("pc_type", "cholesky"))
         if "pc_factor_mat_solver_type" in defaults:
             pc.setFactorSolverType(defaults["pc_factor_mat_solver_type"])
-        if out_of_core:  # only MUMPS factorises out of core (CHOLMOD cannot)
+        if out_of_core:  # only MUMPS factorises out of core (a scene's CHOLMOD cannot)
             pc.setFactorSolverType("mumps")
         self.ksp.setFromOptions()  # the command line still decides
         self._own: _Wrapped | None = None  # the matrix set_csr made, and its arrays

@@ -499,7 +499,7 @@ def test_out_of_core_sets_its_own_electrostatic_mesh_aside_through_the_elastic_p
     np.testing.assert_array_equal(aside.mesh.points, given.points)
     np.testing.assert_array_equal(aside.mesh.capacitor_of_tet, given.capacitor_of_tet)
     np.testing.assert_array_equal(aside.capacitance_pF, kept.capacitance_pF)
-    np.testing.assert_allclose(aside.capacitance_pF, in_core.capacitance_pF, rtol=1e-9)  # MUMPS vs CHOLMOD
+    np.testing.assert_allclose(aside.capacitance_pF, in_core.capacitance_pF, rtol=1e-9)  # MUMPS out of core vs in core
     assert aside.capacitance_pF[1, 0] > 1.05 * aside.capacitance_pF[0, 0]
 
 

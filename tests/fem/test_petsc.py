@@ -54,7 +54,7 @@ def test_linear_solver_many_rhs():
     n = 200
     a = sp.diags([-np.ones(n - 1), 2.5 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsr()
     solver = LinearSolver("electro_")
-    assert solver.description == "preonly/cholesky/cholmod"  # the electrostatic default
+    assert solver.description == "preonly/cholesky/mumps"  # the electrostatic default
     solver.set_csr(a, spd=True)
     b = np.random.default_rng(0).normal(size=(n, 3))
     x = solver.solve(b)
@@ -127,9 +127,9 @@ def test_out_of_core_factors_solve_like_in_core_ones(tmp_path, monkeypatch):
         solver.destroy()
 
 
-def test_out_of_core_electrostatics_switch_to_mumps(tmp_path, monkeypatch):
-    """CHOLMOD (the electrostatic default) has no out-of-core mode: ``out_of_core`` makes
-    the factor package MUMPS, whose solution agrees with CHOLMOD's to round-off."""
+def test_out_of_core_electrostatics_keep_mumps_with_factors_on_disk(tmp_path, monkeypatch):
+    """``out_of_core`` keeps MUMPS (the electrostatic default) and sets its ICNTL(22): the factors go
+    to ``$MUMPS_OOC_TMPDIR`` and the solution agrees with the in-core one to round-off."""
     from mscap.fem.petsc import LinearSolver
 
     monkeypatch.setenv("MUMPS_OOC_TMPDIR", str(tmp_path))
@@ -141,8 +141,7 @@ def test_out_of_core_electrostatics_switch_to_mumps(tmp_path, monkeypatch):
         solver = LinearSolver("electro_", out_of_core=ooc)
         solver.set_csr(a, spd=True)
         x[ooc] = solver.solve(b)
-        assert solver.description == ("preonly/cholesky/mumps" if ooc else "preonly/cholesky/cholmod")
-        if ooc:
-            assert solver.ksp.getPC().getFactorMatrix().getMumpsIcntl(22) == 1
+        assert solver.description == "preonly/cholesky/mumps"
+        assert solver.ksp.getPC().getFactorMatrix().getMumpsIcntl(22) == int(ooc)
         solver.destroy()
     np.testing.assert_allclose(x[True], x[False], rtol=1e-12, atol=1e-13)
