@@ -1,8 +1,8 @@
 """Pose reconstruction from capacitance read-outs: an RBF map fitted on simulated
 training poses, scored on an evaluation sequence under the noise model.
 
-The map is scipy's :class:`~scipy.interpolate.RBFInterpolator` from capacitance vectors
-(pF) to targets: flattened ``(n_points, dim)`` point sets (the posed object's vertices,
+The map is scipy's :class:`~scipy.interpolate.RBFInterpolator` from read-out features to
+targets: flattened ``(n_points, dim)`` point sets (the posed object's vertices,
 ``dim = 3``, or the pose parameters, ``dim = 1``). Interpolation is linear in the data,
 so the map is fitted once to the identity — ``weights(c)`` gives the ``n_train``
 weights of the training targets — and any target set is ``weights(c) @ targets``; the
@@ -10,6 +10,18 @@ large vertex targets are never handed to scipy. Training poses with identical
 capacitance vectors (a symmetric design cannot tell them apart) are merged into one
 sample with the mean target, the least-squares answer, since an interpolant through both
 does not exist.
+
+**Whitened features** (``noise_std`` given; the default of ``mscap calibrate``). The
+paper's map works on the read-outs as they are. Where a design's read-outs vary over the
+training family in some direction by far less than the noise (two plates that read
+alike, a plate that reads nothing: 1e-4 noise standard deviations on the glove), an
+interpolant through the clean training data has a huge slope there, and the noise of a
+read-out along it sends the answer metres away (1,064 mm mean error for a four-plate
+glove design whose read-back bound is 0.34 mm; docs/calibration.md). Here the features
+are divided by their noise standard deviation, rotated onto the principal directions of
+the training read-outs, and the directions whose training spread is below ``min_spread``
+noise standard deviations are dropped: along them the read-outs carry nothing to
+reconstruct from, and the map stays flat. ``smoothing`` then acts in noise units.
 """
 
 from __future__ import annotations
@@ -22,9 +34,45 @@ from scipy.interpolate import RBFInterpolator
 
 from mscap.scene.calibration import NoiseModel
 
-__all__ = ["Reconstructor", "fit", "PoseErrors", "point_errors", "score"]
+__all__ = ["Features", "Reconstructor", "fit", "whitened", "PoseErrors", "point_errors", "score", "MIN_SPREAD"]
 
 log = logging.getLogger(__name__)
+
+#: Principal directions of the whitened training read-outs whose spread (standard deviation
+#: over the family) is below this many noise standard deviations are dropped.
+MIN_SPREAD = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class Features:
+    """The coordinates the map works in: ``(c − center) @ projection``, ``(n, k) → (n, m)``.
+    ``spread[i]`` is the training read-outs' standard deviation along the i-th principal
+    direction in noise standard deviations (largest first); ``m`` of them are kept."""
+
+    center: np.ndarray
+    projection: np.ndarray
+    spread: np.ndarray
+
+    def __call__(self, capacitance_pF: np.ndarray) -> np.ndarray:
+        return (np.atleast_2d(np.asarray(capacitance_pF, dtype=float)) - self.center) @ self.projection
+
+    @property
+    def directions(self) -> int:
+        return self.projection.shape[1]
+
+
+def whitened(features: np.ndarray, noise_std: np.ndarray, min_spread: float = MIN_SPREAD) -> Features:
+    """The principal directions of ``(n, k)`` training ``features`` in units of their noise
+    standard deviations ``(k,)``, those with a spread of at least ``min_spread`` kept."""
+    c = np.asarray(features, dtype=float)
+    std = np.asarray(noise_std, dtype=float).reshape(-1)
+    if std.shape != (c.shape[1],) or not (np.isfinite(std).all() and (std > 0).all()):
+        raise ValueError(f"need {c.shape[1]} finite positive noise standard deviations, got {std}")
+    center = c.mean(axis=0)
+    _, singular, rows = np.linalg.svd((c - center) / std, full_matrices=False)
+    spread = singular / np.sqrt(len(c))
+    keep = spread >= min_spread
+    return Features(center, rows[keep].T / std[:, None], spread)
 
 
 @dataclass(frozen=True, eq=False)
@@ -32,16 +80,23 @@ class Reconstructor:
     """A fitted capacitance → target map.
 
     ``groups[i]`` lists the training poses merged into sample ``i``; ``targets`` are the
-    merged samples' ``(n_samples, n_out)`` targets.
+    merged samples' ``(n_samples, n_out)`` targets; ``features`` maps read-outs to the
+    interpolator's coordinates (``None``: the read-outs themselves). Without an
+    interpolator (no direction above the noise) the map answers the mean sample.
     """
 
-    interpolator: RBFInterpolator
+    interpolator: RBFInterpolator | None
     targets: np.ndarray
     groups: tuple[np.ndarray, ...]
+    features: Features | None = None
 
     def weights(self, capacitance_pF: np.ndarray) -> np.ndarray:
         """``(n, n_samples)`` weights of the training samples at ``(n, k)`` read-outs."""
-        return self.interpolator(np.atleast_2d(np.asarray(capacitance_pF, dtype=float)))
+        c = np.atleast_2d(np.asarray(capacitance_pF, dtype=float))
+        if self.interpolator is None:  # the mean training pose
+            sizes = np.array([len(g) for g in self.groups], dtype=float)
+            return np.broadcast_to(sizes / sizes.sum(), (len(c), len(sizes))).copy()
+        return self.interpolator(c if self.features is None else self.features(c))
 
     def predict(self, capacitance_pF: np.ndarray) -> np.ndarray:
         """``(n, n_out)`` reconstructed targets."""
@@ -49,8 +104,11 @@ class Reconstructor:
 
 
 def fit(capacitance_pF: np.ndarray, targets: np.ndarray, kernel: str = "thin_plate_spline",
-        smoothing: float = 0.0) -> Reconstructor:
-    """Fit the map on ``(n_train, k)`` capacitances and ``(n_train, n_out)`` targets.
+        smoothing: float = 0.0, noise_std: np.ndarray | None = None,
+        min_spread: float = MIN_SPREAD) -> Reconstructor:
+    """Fit the map on ``(n_train, k)`` read-outs and ``(n_train, n_out)`` targets; with
+    ``noise_std`` (``(k,)``, the noise standard deviation of each read-out) on the
+    :func:`whitened` features.
 
     Raises
     ------
@@ -73,9 +131,17 @@ def fit(capacitance_pF: np.ndarray, targets: np.ndarray, kernel: str = "thin_pla
                  len(c), len(groups))
     merged_c = c[first[order]]
     merged_y = np.array([y[g].mean(axis=0) for g in groups])
+    features = None if noise_std is None else whitened(c, noise_std, min_spread)
+    if features is not None:
+        if not features.directions:
+            log.warning("no direction of the read-outs varies over the training family by %g noise "
+                        "standard deviations (largest: %.3g): the map answers the mean pose",
+                        min_spread, features.spread.max(initial=0.0))
+            return Reconstructor(None, merged_y, groups, features)
+        merged_c = features(merged_c)
     n = len(merged_c)
     interpolator = RBFInterpolator(merged_c, np.eye(n), kernel=kernel, smoothing=smoothing)
-    return Reconstructor(interpolator, merged_y, groups)
+    return Reconstructor(interpolator, merged_y, groups, features)
 
 
 def point_errors(predicted: np.ndarray, truth: np.ndarray, dim: int) -> np.ndarray:

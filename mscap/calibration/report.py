@@ -39,7 +39,8 @@ def summary(scene: Scene, scores, noise) -> dict:
     the sequence poses."""
     cal = scene.calibration
     document = {"scene": scene.name, "target": cal.target, "reference_pose": cal.reference,
-                "kernel": cal.kernel, "smoothing": cal.smoothing,
+                "kernel": cal.kernel, "smoothing": cal.smoothing, "features": cal.features,
+                "min_spread": cal.min_spread if cal.features == "whitened" else None,
                 "noise": {"relative_shift": noise.relative_shift, "additive_pF": noise.additive_pF,
                           "runs": noise.runs, "seed": noise.seed},
                 "training_poses": len(cal.training), "sequence_poses": len(cal.sequence),
@@ -50,6 +51,8 @@ def summary(scene: Scene, scores, noise) -> dict:
             "label": s.design.label, "k": s.design.k, "training_used": s.training_used,
             "training_failed": s.training_failed, "rbf_samples": s.samples,
             "sequence_failed": s.sequence_failed, "simulation_s": s.simulation_s,
+            "directions": s.design.k if s.features is None else s.features.directions,
+            "spread_noise_std": None if s.features is None else [float(x) for x in s.features.spread],
             "mean_error": float(np.nanmean(m["mean_error"])), "mean_error_std": float(np.nanmean(m["mean_error_std"])),
             "max_error": float(np.nanmean(m["max_error"])), "max_error_std": float(np.nanmean(m["max_error_std"])),
             "no_signal_mean_error": float(np.nanmean(s.no_signal)),
@@ -82,15 +85,21 @@ def write_outputs(outdir: Path, scene: Scene, scores, noise) -> None:
 
 def text_report(scene: Scene, scores, noise) -> str:
     """The printed table: per design the mean and max error, mean ± std over the runs,
-    averaged over the sequence poses; then the no-signal baseline."""
+    averaged over the sequence poses, and (whitened features) how many read-out directions
+    vary over the family above ``min_spread`` noise standard deviations; then the
+    no-signal baseline."""
     cal = scene.calibration
     unit = "mm" if cal.target == "vertices" else "(parameter units)"
-    lines = [f"{'design':<34} {'k':>2} {'mean error':>16} {'max error':>16}  {unit}, mean ± std over "
+    lines = [f"{'design':<34} {'k':>2} {'mean error':>16} {'max error':>16} {'read':>5}  {unit}, mean ± std over "
              f"{noise.runs} runs, averaged over {len(cal.sequence)} sequence poses"]
     for s in scores:
         m = s.errors.summary()
+        read = "all" if s.features is None else f"{s.features.directions}/{s.design.k}"
         lines.append(f"{s.design.label:<34} {s.design.k:>2} {np.nanmean(m['mean_error']):>8.3f} ± "
                      f"{np.nanmean(m['mean_error_std']):<6.3f} {np.nanmean(m['max_error']):>8.3f} ± "
-                     f"{np.nanmean(m['max_error_std']):<6.3f}")
+                     f"{np.nanmean(m['max_error_std']):<6.3f} {read:>5}")
     lines.append(f"{'no signal (mean training pose)':<34} {'':>2} {np.mean(scores[0].no_signal):>8.3f}")
+    if any(s.features is not None for s in scores):
+        lines.append(f"read: directions of the read-outs that vary over the training family by at least "
+                     f"{cal.min_spread:g} noise standard deviations, of k (docs/calibration.md)")
     return "\n".join(lines)

@@ -37,7 +37,8 @@ from typing import TYPE_CHECKING, Callable
 import h5py
 import numpy as np
 
-from mscap.calibration.reconstruction import PoseErrors, fit, point_errors, score
+from mscap.calibration.reconstruction import Features, PoseErrors, fit, point_errors, score
+from mscap.design.readback import reading_variance
 from mscap.errors import CalibrationError, MscapError
 from mscap.geometry.layout import Layout
 from mscap.scene.calibration import CalibrationSettings, family_poses
@@ -316,6 +317,7 @@ class DesignScore:
     samples: int
     sequence_failed: int
     simulation_s: float
+    features: Features | None = None  # the map's whitened directions (None: raw read-outs)
 
 
 def evaluate(scene: Scene, designs: list[Candidate], cache_path, noise=None) -> list[DesignScore]:
@@ -340,7 +342,12 @@ def evaluate(scene: Scene, designs: list[Candidate], cache_path, noise=None) -> 
             log.warning("design %s: %d training and %d sequence poses failed to simulate; left out",
                         design.label, (~ok_train).sum(), (~ok_seq).sum())
         features = c_train[ok_train] if c_ref is None else c_train[ok_train] / c_ref
-        model = fit(features, train_y[ok_train], cal.kernel, cal.smoothing)
+        noise_std, smoothing = None, cal.smoothing
+        if cal.features == "whitened":  # each feature's noise at the family's mean read-out
+            noise_std = np.sqrt(reading_variance(features.mean(axis=0), c_ref, noise)[0])
+            if not (noise_std > 0).all():  # noise-free read-outs: the interpolant, the limit σ → 0
+                noise_std, smoothing = None, 0.0
+        model = fit(features, train_y[ok_train], cal.kernel, smoothing, noise_std, cal.min_spread)
         errors = score(model, c_seq[ok_seq], seq_y[ok_seq], dim, noise, reference_pF=c_ref)
         full_mean = np.full((noise.runs, len(c_seq)), np.nan)
         full_max = full_mean.copy()
@@ -348,5 +355,6 @@ def evaluate(scene: Scene, designs: list[Candidate], cache_path, noise=None) -> 
         no_signal = point_errors(train_y[ok_train].mean(axis=0)[None], seq_y, dim).mean(axis=1)
         scores.append(DesignScore(design, PoseErrors(full_mean, full_max), no_signal, int(ok_train.sum()),
                                   int((~ok_train).sum()), len(model.groups), int((~ok_seq).sum()),
-                                  float(sum(data[f"{w}_wall_s"].sum() for w in families(scene)))))
+                                  float(sum(data[f"{w}_wall_s"].sum() for w in families(scene))),
+                                  model.features))
     return scores

@@ -52,6 +52,9 @@ __all__ = ["NoiseModel", "CalibrationSettings", "read_calibration", "family_pose
            "TARGETS", "MAX_FAMILY_POSES", "MAX_NOISE_RUNS", "MAX_SEED"]
 
 TARGETS = ("vertices", "parameters")
+
+#: Read-out features of the reconstruction map (:mod:`mscap.calibration.reconstruction`).
+FEATURES = ("whitened", "raw")
 #: Poses of a calibration family (training grid, or sequence), each a simulation.
 MAX_FAMILY_POSES = 10_000
 #: Noisy runs (the read-outs are held as runs x poses x capacitors).
@@ -107,8 +110,11 @@ class CalibrationSettings:
     """A scene's ``[calibration]``: the template pose, the varied parameters and their
     training grid ``(n_train, n_par)`` and evaluation sequence ``(n_seq, n_par)``,
     whether a sequence pose lies inside the training ranges, the reference pose (read
-    once per run; the read-outs are divided by it) or ``None``, the RBF settings and the
-    noise model."""
+    once per run; the read-outs are divided by it) or ``None``, the RBF settings, the
+    noise model, and the map's features: ``"whitened"`` (read-outs in noise standard
+    deviations, principal directions with a training spread below ``min_spread`` of them
+    dropped; ``smoothing`` in those units) or ``"raw"`` (the paper's: the read-outs as they
+    are; :mod:`mscap.calibration.reconstruction`)."""
 
     pose: str
     parameters: tuple[str, ...]
@@ -118,8 +124,10 @@ class CalibrationSettings:
     target: str = "vertices"
     reference: str | None = None
     kernel: str = "thin_plate_spline"
-    smoothing: float = 0.0
+    smoothing: float = 1.0
     noise: NoiseModel = NoiseModel()
+    features: str = "whitened"
+    min_spread: float = 0.5
 
     def family_sha256(self) -> str:
         """Identifies the simulated family (cached capacitances are valid while it holds)."""
@@ -184,7 +192,11 @@ def read_calibration(t: Table | None, poses: tuple) -> CalibrationSettings | Non
     kernel = t.get("kernel", str, "thin_plate_spline")
     if kernel not in KERNELS:
         raise t.error("kernel", f"unknown RBF kernel {kernel!r}; expected one of {', '.join(KERNELS)}")
-    smoothing = t.get("smoothing", float, 0.0, minimum=0.0)
+    features = t.get("features", str, "whitened")
+    if features not in FEATURES:
+        raise t.error("features", f"unknown value {features!r}; expected one of {', '.join(FEATURES)}")
+    smoothing = t.get("smoothing", float, 1.0 if features == "whitened" else 0.0, minimum=0.0)
+    min_spread = t.get("min_spread", float, 0.5, minimum=0.0)
 
     training_t = t.table("training")
     names = tuple(training_t.data)
@@ -245,13 +257,15 @@ def read_calibration(t: Table | None, poses: tuple) -> CalibrationSettings | Non
                                             why="read-outs are held as runs x poses x capacitors"),
                            seed=noise_t.get("seed", int, 0, minimum=0, maximum=MAX_SEED))
         noise_t.finish()
+    if features == "whitened" and noise.additive_pF == 0 and (reference is not None or noise.relative_shift == 0):
+        raise t.error("features", "'whitened' measures the read-outs in noise standard deviations, and this "
+                      "noise model has none (additive_pF = 0); use features = 'raw'")
     t.finish()
     _check_positive(t, template, names, training, sequence)
     _check_family(t, template, names, training, sequence)
     return CalibrationSettings(pose=name, parameters=names, training=training, sequence=sequence,
                                in_range=in_range, target=target, reference=reference, kernel=kernel,
-                               smoothing=smoothing,
-                               noise=noise)
+                               smoothing=smoothing, noise=noise, features=features, min_spread=min_spread)
 
 
 def _path(waypoints: np.ndarray, steps: int) -> np.ndarray:

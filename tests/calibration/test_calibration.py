@@ -17,7 +17,7 @@ import pytest
 
 from mscap.calibration.service import Candidate, evaluate, family, physics_sha256, simulate_family, \
     targets
-from mscap.calibration.reconstruction import fit, point_errors, score
+from mscap.calibration.reconstruction import MIN_SPREAD, fit, point_errors, score, whitened
 from mscap.errors import SceneError
 from mscap.scene import load_scene
 from mscap.scene.calibration import NoiseModel
@@ -86,6 +86,49 @@ def test_point_errors_and_noise_free_score():
     assert errors.mean.shape == (3, 4) and errors.max.max() < 1e-9
 
 
+def test_whitened_map_drops_a_direction_below_the_noise_and_stays_bounded():
+    """Two read-outs: the first spans the family, the second moves 1e-6 pF with it (a
+    plate that reads almost nothing). The raw thin-plate spline follows that trend with
+    its linear part and sends a 1 pF error of the second read-out kilometres away; the
+    whitened map drops the direction (spread 1.5e-7 noise std) and equals the spline on the
+    first read-out alone (in 1-D a thin-plate spline is scale- and shift-equivariant: its
+    r² log a term is a polynomial its linear part absorbs)."""
+    t = np.linspace(0.0, 1.0, 9)
+    c = np.column_stack([50 + 10 * t, 20 + 1e-6 * t**2])
+    y = np.column_stack([30 * t**2, np.cos(3 * t)])
+    std = np.array([2.0, 2.0])
+    raw, white = fit(c, y), fit(c, y, noise_std=std)
+    assert white.features.directions == 1
+    assert white.features.spread[0] == pytest.approx(np.std(10 * t) / 2.0, rel=1e-6)
+    assert white.features.spread[1] < 1e-6
+    noisy = c[[2, 6]] + [[0.0, 1.0], [0.0, -1.0]]
+    assert np.abs(raw.predict(noisy)).max() > 1e6                          # mm: the blow-up
+    alone = fit(c[:, :1], y)
+    np.testing.assert_allclose(white.predict(noisy), alone.predict(noisy[:, :1]), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(white.predict(c), y, atol=1e-6)            # still through the training data
+
+
+def test_whitened_features_are_in_noise_units_and_answer_the_mean_without_signal():
+    """A read-out scaled by λ with its noise scaled by λ is the same feature: the map does
+    not change (to round-off). With every direction below ``min_spread`` noise standard
+    deviations the map answers the mean training target, whatever the read-out."""
+    rng = np.random.default_rng(1)
+    c = 50 + 20 * rng.random((25, 3))
+    y = rng.random((25, 4))
+    std = np.array([1.0, 2.0, 0.5])
+    scale = np.array([3.0, 0.1, 7.0])
+    base, scaled = fit(c, y, noise_std=std), fit(c * scale, y, noise_std=std * scale)
+    probe = 45 + 30 * rng.random((6, 3))
+    np.testing.assert_allclose(scaled.predict(probe * scale), base.predict(probe), rtol=1e-8, atol=1e-10)
+    spread = whitened(c, std).spread
+    assert spread.min() > MIN_SPREAD
+    quiet = fit(c, y, noise_std=np.full(3, 10 * spread.max() * std.max() / MIN_SPREAD))
+    assert quiet.interpolator is None and quiet.features.directions == 0
+    np.testing.assert_allclose(quiet.predict(probe), np.broadcast_to(y.mean(axis=0), (6, 4)), rtol=1e-12)
+    with pytest.raises(ValueError, match="positive noise standard deviations"):
+        fit(c, y, noise_std=np.array([1.0, 0.0, 1.0]))
+
+
 # ---------------------------------------------------------------- scenes
 def calibration_scene(**calibration) -> dict:
     """The small test sheet glued onto a dome whose radius the calibration varies."""
@@ -109,6 +152,9 @@ def test_calibration_section_is_read(write_scene):
     np.testing.assert_allclose(cal.sequence.ravel(), [80, 68.75, 57.5, 46.25, 35, 32.75, 30.5, 28.25, 26])
     assert cal.in_range.tolist() == [True] * 7 + [False] * 2
     assert cal.noise == NoiseModel(0.15, 2.0, 20, 0)
+    assert (cal.features, cal.smoothing, cal.min_spread) == ("whitened", 1.0, 0.5)   # smoothing in noise units
+    raw = load_scene(write_scene(calibration_scene(features="raw"), "raw.toml")).calibration
+    assert (raw.features, raw.smoothing) == ("raw", 0.0)                             # the paper's map
     poses = family(scene, "training")
     assert [p.name for p in poses][:2] == ["training_0", "training_1"]
     assert dict(poses[2].generator_parameters)["radius_mm"] == 50.0
@@ -127,6 +173,9 @@ def test_calibration_section_is_read(write_scene):
     ({"training": {"radius_mm": [10.0, 80.0, 3]}}, "calibration.training.radius_mm", "at {'radius_mm': 10.0}"),
     ({"kernel": "spline"}, "calibration.kernel", "unknown RBF kernel"),
     ({"target": "pixels"}, "calibration.target", "unknown value"),
+    ({"features": "pca"}, "calibration.features", "expected one of whitened, raw"),
+    ({"min_spread": -1.0}, "calibration.min_spread", ">= 0"),
+    ({"noise": {"additive_pF": 0.0}, "reference": "rest"}, "calibration.features", "use features = 'raw'"),
     ({"noise": {"relative_shift": 1.5}}, "calibration.noise.relative_shift", "must be < 1"),
     ({"noise": {"runs": 10, "sed": 1}}, "calibration.noise.sed", "did you mean 'seed'"),
 ])
@@ -197,7 +246,10 @@ def test_a_reference_pose_cancels_the_per_run_shift(write_scene, tmp_path):
 
 
 def test_cache_is_reused_extended_and_survives_a_noise_change(write_scene, tmp_path):
-    scene = load_scene(write_scene(calibration_scene()))
+    # The raw map: on this small sheet the untared read-outs vary over the family by less
+    # than half the per-run shift's spread, so the whitened map answers the mean pose
+    # whatever the additive noise (test_reconstruction.py covers that).
+    scene = load_scene(write_scene(calibration_scene(features="raw")))
     cache = tmp_path / "cache.h5"
     lines = []
     ds = designs(scene)
@@ -214,7 +266,8 @@ def test_cache_is_reused_extended_and_survives_a_noise_change(write_scene, tmp_p
         # a smaller dome radius stretches the sheet more: capacitance grows (plate area ~ λ²/λ_z)
         assert np.all(np.diff(c, axis=0) < 0)
     lines.clear()
-    renoised = load_scene(write_scene(calibration_scene(noise={"runs": 5, "additive_pF": 0.5}), "n.toml"))
+    renoised = load_scene(write_scene(calibration_scene(noise={"runs": 5, "additive_pF": 0.5}, features="raw"),
+                                      "n.toml"))
     simulate_family(renoised, ds, cache, _OneRank(), progress=lines.append)
     assert "0 poses to simulate" in lines[0]
     quiet, loud = (evaluate(renoised, ds, cache), evaluate(scene, ds, cache))
@@ -319,6 +372,8 @@ def test_cli_writes_errors_summary_and_figure_and_mpi_matches_serial(write_scene
     summary = json.loads((out / "summary.json").read_text())
     assert [d["label"] for d in summary["designs"]] == ["k2_s0000_lloyd (optimised)", "k2_s0000_lloyd:initial"]
     assert summary["noise"]["runs"] == 10 and summary["out_of_range_poses"] == 2
+    assert summary["features"] == "whitened" and summary["min_spread"] == 0.5
+    assert all(len(d["spread_noise_std"]) == 2 and 0 <= d["directions"] <= 2 for d in summary["designs"])
     rows = (out / "errors.csv").read_text().splitlines()
     assert rows[0].startswith("design,k,pose,radius_mm,in_training_range,mean_error") and len(rows) == 1 + 2 * 9
     assert (out / "errors.png").stat().st_size > 10_000
