@@ -32,15 +32,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import RBFInterpolator
 
-from mscap.scene.calibration import NoiseModel
+from mscap.scene.calibration import MIN_SPREAD, NoiseModel
 
 __all__ = ["Features", "Reconstructor", "fit", "whitened", "PoseErrors", "point_errors", "score", "MIN_SPREAD"]
 
 log = logging.getLogger(__name__)
-
-#: Principal directions of the whitened training read-outs whose spread (standard deviation
-#: over the family) is below this many noise standard deviations are dropped.
-MIN_SPREAD = 0.5
 
 
 @dataclass(frozen=True, eq=False)

@@ -49,12 +49,16 @@ import numpy as np
 from mscap.scene._toml import Table
 
 __all__ = ["NoiseModel", "CalibrationSettings", "read_calibration", "family_poses", "pose_parameters",
-           "TARGETS", "MAX_FAMILY_POSES", "MAX_NOISE_RUNS", "MAX_SEED"]
+           "TARGETS", "FEATURES", "MIN_SPREAD", "MAX_FAMILY_POSES", "MAX_NOISE_RUNS", "MAX_SEED"]
 
 TARGETS = ("vertices", "parameters")
 
 #: Read-out features of the reconstruction map (:mod:`mscap.calibration.reconstruction`).
 FEATURES = ("whitened", "raw")
+#: Whitened features: principal directions of the training read-outs whose spread over the
+#: family is below this many noise standard deviations are dropped.
+MIN_SPREAD = 0.5
+
 #: Poses of a calibration family (training grid, or sequence), each a simulation.
 MAX_FAMILY_POSES = 10_000
 #: Noisy runs (the read-outs are held as runs x poses x capacitors).
@@ -127,7 +131,7 @@ class CalibrationSettings:
     smoothing: float = 1.0
     noise: NoiseModel = NoiseModel()
     features: str = "whitened"
-    min_spread: float = 0.5
+    min_spread: float = MIN_SPREAD
 
     def family_sha256(self) -> str:
         """Identifies the simulated family (cached capacitances are valid while it holds)."""
@@ -196,7 +200,7 @@ def read_calibration(t: Table | None, poses: tuple) -> CalibrationSettings | Non
     if features not in FEATURES:
         raise t.error("features", f"unknown value {features!r}; expected one of {', '.join(FEATURES)}")
     smoothing = t.get("smoothing", float, 1.0 if features == "whitened" else 0.0, minimum=0.0)
-    min_spread = t.get("min_spread", float, 0.5, minimum=0.0)
+    min_spread = t.get("min_spread", float, MIN_SPREAD, minimum=0.0)
 
     training_t = t.table("training")
     names = tuple(training_t.data)
