@@ -38,6 +38,12 @@ def add_parser(sub) -> None:
     p.add_argument("--reference", metavar="POSE",
                    help="divide every read-out by this pose's, read once per run ('none': raw "
                         "read-outs; default: the scene's calibration.reference)")
+    p.add_argument("--features", choices=("whitened", "raw"),
+                   help="read-out features of the map: 'whitened' (noise units, the directions the family "
+                        "resolves above the noise) or 'raw' (the paper's map); default: the scene's, whitened. "
+                        "A scene's smoothing is in its features' units: with --features the smoothing is "
+                        "that map's default (1 whitened, 0 raw) unless --smoothing is given")
+    p.add_argument("--smoothing", type=float, help="RBF smoothing (whitened: in noise units); default: the scene's")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     add_memory_option(p)
     p.set_defaults(run=run)
@@ -67,6 +73,13 @@ def run(args) -> int:
                                    f"({', '.join(p.name for p in scene.poses)})")
         cal = replace(cal, reference=reference)
         scene = replace(scene, calibration=cal)
+    if args.features is not None and args.features != cal.features:
+        cal = replace(cal, features=args.features, smoothing=1.0 if args.features == "whitened" else 0.0)
+    if args.smoothing is not None:
+        if not args.smoothing >= 0:
+            raise CalibrationError(f"--smoothing must be >= 0, got {args.smoothing}")
+        cal = replace(cal, smoothing=args.smoothing)
+    scene = replace(scene, calibration=cal)
     default_cache, default_out = default_paths(args.design)
     cache, outdir = Path(args.cache or default_cache), Path(args.output or default_out)
     if rank == 0:
@@ -80,3 +93,4 @@ def run(args) -> int:
     print(text_report(scene, scores, noise))
     print(f"wrote {outdir}/errors.csv, summary.json, errors.png")
     return 0
+

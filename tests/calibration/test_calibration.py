@@ -374,6 +374,13 @@ def test_cli_writes_errors_summary_and_figure_and_mpi_matches_serial(write_scene
     assert summary["noise"]["runs"] == 10 and summary["out_of_range_poses"] == 2
     assert summary["features"] == "whitened" and summary["min_spread"] == 0.5
     assert all(len(d["spread_noise_std"]) == 2 and 0 <= d["directions"] <= 2 for d in summary["designs"])
+    raw = mscap("calibrate", path, "--design", tmp_path / "r.h5", "--runs", "10", "--features", "raw",
+                "-o", tmp_path / "raw")                                 # the cached simulations, re-scored
+    assert raw.returncode == 0, raw.stderr
+    raw_summary = json.loads((tmp_path / "raw" / "summary.json").read_text())
+    assert (raw_summary["features"], raw_summary["smoothing"], raw_summary["min_spread"]) == ("raw", 0.0, None)
+    assert all(d["spread_noise_std"] is None and d["directions"] == 2 for d in raw_summary["designs"])
+    assert "0 poses to simulate" in raw.stdout + raw.stderr
     rows = (out / "errors.csv").read_text().splitlines()
     assert rows[0].startswith("design,k,pose,radius_mm,in_training_range,mean_error") and len(rows) == 1 + 2 * 9
     assert (out / "errors.png").stat().st_size > 10_000
@@ -403,6 +410,8 @@ def test_cli_errors(write_scene, tmp_path):
     other["name"] = "other"
     result = mscap("calibrate", write_scene(other, "o.toml"), "--design", tmp_path / "r.h5")
     assert result.returncode == 2 and "holds results of scene 'small'" in result.stderr
+    result = mscap("calibrate", path, "--design", tmp_path / "r.h5", "--smoothing", "-1")
+    assert result.returncode == 2 and "--smoothing must be >= 0, got -1.0" in result.stderr
 
 
 def test_cli_takes_an_optimize_directory(write_scene, tmp_path):
