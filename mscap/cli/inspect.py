@@ -25,7 +25,8 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from mscap.service.report import error_estimates, history_text, runs_table, summary_json, table
+    from mscap.service.report import (error_estimates, history_text, runs_table, silent_plates,
+                                      silent_plates_text, summary_json, table)
     from mscap.service.store import finished_ids, read_run, read_store, store_selection
 
     with read_store(args.results) as store:
@@ -37,9 +38,16 @@ def run(args) -> int:
             return 0
         selection = store_selection(store)
         errors = error_estimates(store)
+        silent = []
+        if selection.chosen_run is not None:
+            silent = silent_plates(read_run(store, selection.chosen_run).final_capacitance_pF)
         if args.json:
-            print(json.dumps(summary_json(selection, errors), indent=1))
+            document = summary_json(selection, errors)
+            document["silent_plates"] = [{"plate": j, "mean_pF": m, "std_pF": sd} for j, m, sd in silent]
+            print(json.dumps(document, indent=1))
         else:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
                                    f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors))
+            if silent:
+                print(silent_plates_text(selection.chosen_run, silent))
     return 0

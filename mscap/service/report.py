@@ -8,7 +8,13 @@ import math
 
 from mscap.service.store import HISTORY_COLUMNS, finished_ids
 
-__all__ = ["error_estimates", "summary_json", "table", "runs_table", "history_text"]
+__all__ = ["error_estimates", "summary_json", "table", "runs_table", "history_text", "silent_plates",
+           "silent_plates_text"]
+
+#: A plate whose read-out varies over the design poses by less than this fraction of the
+#: per-reading offset noise (appendix A: ±2 pF uniform, σ = 1.15 pF) tells them nothing,
+#: whatever the protocol: taring removes the per-run shift, not the offsets.
+SILENT_FRACTION = 0.5
 
 
 def error_estimates(store) -> dict[str, float]:
@@ -43,6 +49,30 @@ def summary_json(selection, errors: dict | None = None) -> dict:
             "decision_margin": _finite_or_none(selection.margin),
             "decision_finer_margin": _finite_or_none(selection.finer_margin),
             "decision_error": _finite_or_none(selection.margin_error), "resolution": selection.verdict()}
+
+
+def silent_plates(capacitance_pF, noise=None) -> list[tuple[int, float, float]]:
+    """Plates of a design whose read-out (``(n_poses, k)`` capacitances over its design
+    poses) varies by less than :data:`SILENT_FRACTION` of the per-reading noise σ: as
+    ``(plate, mean pF, standard deviation pF)``. The optimiser cannot revive such a plate:
+    with no sensitivity to the poses it gets no gradient from either objective."""
+    import numpy as np
+
+    from mscap.scene.calibration import NoiseModel
+
+    sigma = (noise or NoiseModel()).additive_std_pF
+    c = np.asarray(capacitance_pF, dtype=float)
+    if c.ndim != 2 or len(c) < 2 or not np.isfinite(c).all():
+        return []
+    spread = c.std(axis=0)
+    return [(int(j), float(c[:, j].mean()), float(spread[j])) for j in np.flatnonzero(spread < SILENT_FRACTION * sigma)]
+
+
+def silent_plates_text(run_id: str, plates) -> str:
+    """One line per silent plate of the chosen run (empty when there is none)."""
+    return "\n".join(f"  warning: plate {j} of {run_id} reads {mean:.2f} ± {std:.2g} pF at every design pose, "
+                     f"less than {SILENT_FRACTION:g} of the read-out noise (±2 pF): it tells the poses nothing"
+                     for j, mean, std in plates)
 
 
 def _percent(x: float) -> str:

@@ -260,6 +260,23 @@ def test_selection_group(tmp_path, scene):
         assert g["best_run"].asstr()[list(g["k"][()]).index(selection.chosen_k)] == selection.chosen_run
 
 
+def test_silent_plates_threshold_is_half_the_offset_noise():
+    """A plate is silent when its read-out's standard deviation over the design poses is
+    below half the per-reading offset noise σ = a/√3 (1.155 pF for appendix A's ±2 pF)."""
+    from mscap.scene.calibration import NoiseModel
+    from mscap.service.report import SILENT_FRACTION, silent_plates
+
+    sigma = 2.0 / np.sqrt(3)
+    wave = np.array([-1.0, 1.0, -1.0, 1.0])  # standard deviation 1
+    c = np.column_stack([50 + 0.99 * SILENT_FRACTION * sigma * wave, 40 + 1.01 * SILENT_FRACTION * sigma * wave,
+                         np.full(4, 30.0), 60 + 5 * wave])
+    (plate0, plate2) = silent_plates(c)
+    assert plate0[0] == 0 and plate0[1] == pytest.approx(50) and plate0[2] == pytest.approx(0.99 * 0.5 * sigma)
+    assert plate2 == (2, 30.0, 0.0)
+    assert [p for p, _, _ in silent_plates(c, NoiseModel(additive_pF=0.2))] == [2]   # less noise: only the dead one
+    assert silent_plates(c[:1]) == [] and silent_plates(np.full((3, 2), np.nan)) == []
+
+
 def synthetic_store(path, scene, metrics: dict, failures=()):
     """Runs with a prescribed final metric per (k, seed): capacitances of poses on a line."""
     with open_store(path, scene, mpi_size=2) as store:
@@ -282,9 +299,12 @@ def test_inspect_json(tmp_path, scene, capsys):
     assert doc["chosen_k"] == 3 and doc["chosen_run"] == "k3_s3000_random" and doc["runs_total"] == 6
     assert [(e["k"], e["runs_ok"], e["runs_failed"], e["best_metric"], e["best_run"]) for e in doc["per_k"]] == [
         (2, 2, 0, 1.5, "k2_s2001_random"), (3, 1, 1, 2.0, "k3_s3000_random"), (4, 1, 1, 2.02, "k4_s4000_random")]
+    # the synthetic runs read only on plate 0: the chosen run's plates 1 and 2 are silent
+    assert doc["silent_plates"] == [{"plate": 1, "mean_pF": 0.0, "std_pF": 0.0}, {"plate": 2, "mean_pF": 0.0, "std_pF": 0.0}]
     assert main(["inspect", str(path)]) == 0
     text = capsys.readouterr().out
     assert "*   3" in text and "chosen k = 3" in text
+    assert "warning: plate 2 of k3_s3000_random reads 0.00 ± 0 pF at every design pose" in text
     assert main(["inspect", str(path), "--run", "k3_s3001_random"]) == 0
     assert "error: Newton failed" in capsys.readouterr().out
     assert main(["inspect", str(path), "--run", "k2_s2000_random"]) == 0
