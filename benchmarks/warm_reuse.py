@@ -35,74 +35,40 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):  # one core per process
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
-import scipy.sparse as sp  # noqa: E402
 
 from mscap import build_design, load_scene  # noqa: E402
 from mscap.fem import electrostatic  # noqa: E402
-from mscap.fem.petsc import petsc  # noqa: E402
+from mscap.fem.petsc import LinearSolver, petsc  # noqa: E402
 
 PETSc = petsc()
 
 
 def electrostatic_system(problem, vertices):
-    """The free-free matrix and the k right-hand sides (top plates at 1 V) at ``vertices``."""
-    data = electrostatic.assemble(problem, vertices)
-    n_free, k = len(problem.free), problem.k
-    matrix = sp.csr_matrix((data[problem.ff_entries], problem.ff_indices, problem.ff_indptr), shape=(n_free, n_free))
-    coupling = np.bincount(problem.fd_target, weights=data[problem.fd_entries], minlength=n_free * 2 * k)
-    return matrix, -coupling.reshape(n_free, 2 * k)[:, k:]
+    """The free-dof matrix and the k right-hand sides (top plates at 1 V) at ``vertices``."""
+    return electrostatic.free_system(problem, electrostatic.assemble(problem, vertices),
+                                     np.arange(problem.k, 2 * problem.k))
 
 
-def petsc_matrix(matrix):
-    csr = matrix.tocsr()
-    mat = PETSc.Mat().createAIJWithArrays(csr.shape, (csr.indptr.astype(PETSc.IntType),
-                                                      csr.indices.astype(PETSc.IntType), csr.data.copy()),
-                                          comm=PETSc.COMM_SELF)
-    mat.setOption(PETSc.Mat.Option.SPD, True)
-    return mat
+def solver(way: str, matrix) -> LinearSolver:
+    """mscap's own solver (options prefix ``warm_<way>_``) with ``matrix`` factorised (a
+    direct ``way``: ``cholmod``, ``mumps``) or set up (``hypre``, ``icc``: CG at ``--rtol``)."""
+    options = PETSc.Options()
+    prefix = f"warm_{way}_"
+    if way in ("cholmod", "mumps"):
+        options.setValue(f"{prefix}pc_factor_mat_solver_type", way)
+    else:
+        options.setValue(f"{prefix}ksp_type", "cg")
+        options.setValue(f"{prefix}pc_type", way)
+    out = LinearSolver(prefix)
+    out.set_csr(matrix, spd=True)
+    return out
 
 
-class Factor:
-    """A Cholesky factorisation of one matrix, applied to a block of columns at once."""
-
-    def __init__(self, matrix, package: str):
-        self.mat = petsc_matrix(matrix)
-        self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
-        self.ksp.setType("preonly")
-        self.ksp.getPC().setType("cholesky")
-        self.ksp.getPC().setFactorSolverType(package)
-        self.ksp.setOperators(self.mat)
-        self.ksp.setUp()
-
-    def refactor(self, matrix) -> None:
-        """New values on the same pattern: numeric factorisation only."""
-        csr = matrix.tocsr()
-        self.mat.setValuesCSR(csr.indptr.astype(PETSc.IntType), csr.indices.astype(PETSc.IntType), csr.data)
-        self.mat.assemble()
-        self.ksp.setOperators(self.mat)
-        self.ksp.setUp()
-
-    def apply(self, columns: np.ndarray) -> np.ndarray:
-        n, m = columns.shape
-        b = PETSc.Mat().createDense((n, m), array=np.asfortranarray(columns), comm=PETSc.COMM_SELF)
-        x = PETSc.Mat().createDense((n, m), comm=PETSc.COMM_SELF)
-        x.setUp()
-        self.ksp.getPC().getFactorMatrix().matSolve(b, x)
-        out = np.array(x.getDenseArray(), copy=True)
-        b.destroy()
-        x.destroy()
-        return out
-
-    def destroy(self) -> None:
-        self.ksp.destroy()
-        self.mat.destroy()
-
-
-def lockstep_cg(matrix, rhs, factor: Factor, rtol: float, max_iterations: int = 100):
+def lockstep_cg(matrix, rhs, factor: LinearSolver, rtol: float, max_iterations: int = 100):
     """CG on every column at once, preconditioned by ``factor``: (solution, iterations)."""
     x = np.zeros_like(rhs)
     residual = rhs.copy()
-    z = factor.apply(residual)
+    z = factor.solve(residual)
     direction = z.copy()
     rz = np.einsum("ij,ij->j", residual, z)
     limit = rtol * np.linalg.norm(rhs, axis=0)
@@ -113,7 +79,7 @@ def lockstep_cg(matrix, rhs, factor: Factor, rtol: float, max_iterations: int = 
         alpha = rz / np.einsum("ij,ij->j", direction, q)
         x += alpha * direction
         residual -= alpha * q
-        z = factor.apply(residual)
+        z = factor.solve(residual)
         rz_new = np.einsum("ij,ij->j", residual, z)
         direction = z + (rz_new / rz) * direction
         rz = rz_new
@@ -121,23 +87,13 @@ def lockstep_cg(matrix, rhs, factor: Factor, rtol: float, max_iterations: int = 
 
 
 def iterative(matrix, rhs, pc_type: str, rtol: float):
-    """CG with a PETSc preconditioner, one column after the other: (solution, iterations)."""
-    mat = petsc_matrix(matrix)
-    ksp = PETSc.KSP().create(PETSc.COMM_SELF)
-    ksp.setType("cg")
-    ksp.getPC().setType(pc_type)
-    ksp.setTolerances(rtol=rtol, atol=0.0, max_it=2000)
-    ksp.setOperators(mat)
-    b, x = mat.createVecLeft(), mat.createVecRight()
-    out, iterations = np.empty_like(rhs), 0
-    for j in range(rhs.shape[1]):
-        b.setArray(rhs[:, j])
-        x.set(0.0)
-        ksp.solve(b, x)
-        iterations = max(iterations, ksp.getIterationNumber())
-        out[:, j] = x.getArray()
-    ksp.destroy()
-    mat.destroy()
+    """CG with a PETSc preconditioner, one column after the other: (solution, iterations of
+    the last column)."""
+    PETSc.Options().setValue(f"warm_{pc_type}_ksp_rtol", rtol)
+    cg = solver(pc_type, matrix)
+    out = cg.solve(rhs)
+    iterations = cg.ksp.getIterationNumber()
+    cg.destroy()
     return out, iterations
 
 
@@ -179,11 +135,11 @@ def main(argv=None) -> None:
 
     rows: dict[str, list] = {}
     for package in ("cholmod", "mumps"):
-        kept = [Factor(matrix, package) for matrix, _ in old]
+        kept = [solver(package, matrix) for matrix, _ in old]
         for pose, ((matrix, rhs), factor) in enumerate(zip(new, kept)):
-            direct = Factor(old[pose][0], package)
-            wall, x = best_of(args.repeats, lambda: (direct.refactor(matrix), direct.apply(rhs))[1])
-            rows.setdefault(f"refactor {package}", []).append((wall, 0, 0.0))
+            direct = solver(package, old[pose][0])  # then numeric refactorisations, as an optimiser step
+            wall, x = best_of(args.repeats, lambda: (direct.set_csr(matrix, spd=True), direct.solve(rhs))[1])
+            rows.setdefault(f"refactor {package}", []).append((wall, 0, None))
             if package == "mumps":  # the reference of the C errors
                 rows.setdefault("_reference", []).append(x)
             direct.destroy()
@@ -192,7 +148,7 @@ def main(argv=None) -> None:
         shared = None
         for pose, (matrix, rhs) in enumerate(new):
             if pose == 0:
-                shared = Factor(matrix, package)
+                shared = solver(package, matrix)
                 continue
             wall, (y, its) = best_of(args.repeats, lambda: lockstep_cg(matrix, rhs, shared, args.rtol))
             rows.setdefault(f"shared {package}", []).append((wall, its, y))
@@ -209,7 +165,7 @@ def main(argv=None) -> None:
     for way, entries in rows.items():
         offset = len(references) - len(entries)  # "shared" skips the first pose
         errors = [capacitance_error(new[i + offset][0], y, references[i + offset])
-                  for i, (_, _, y) in enumerate(entries) if not isinstance(y, float)]
+                  for i, (_, _, y) in enumerate(entries) if y is not None]
         walls = [e[0] * 1e3 for e in entries]
         iterations = [e[1] for e in entries]
         print(f"{way:<18} {np.mean(walls):>8.0f} ({min(walls):.0f}-{max(walls):.0f}) "

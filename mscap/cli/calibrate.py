@@ -72,7 +72,6 @@ def run(args) -> int:
             raise CalibrationError(f"--reference {reference!r}: no such pose in {scene.path} "
                                    f"({', '.join(p.name for p in scene.poses)})")
         cal = replace(cal, reference=reference)
-        scene = replace(scene, calibration=cal)
     if args.features is not None and args.features != cal.features:
         cal = replace(cal, features=args.features, smoothing=1.0 if args.features == "whitened" else 0.0)
     if args.smoothing is not None:

@@ -36,7 +36,7 @@ from mscap.mesh.layered import (BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE
 from mscap.fem.petsc import LinearSolver, petsc
 
 __all__ = ["ElectrostaticError", "InvertedMeshError", "ElectrostaticProblem", "Capacitances", "build_problem",
-           "check_plates", "permittivity_of_tets", "assemble", "solve", "capacitance_vjp", "capacitance_jacobian",
+           "check_plates", "permittivity_of_tets", "assemble", "free_system", "solve", "capacitance_vjp", "capacitance_jacobian",
            "maxwell_vjp"]
 
 log = logging.getLogger(__name__)
@@ -366,9 +366,7 @@ def solve(problem: ElectrostaticProblem, x: np.ndarray | None = None, maxwell: b
     plates = np.arange(2 * k) if maxwell else np.arange(k, 2 * k)
     start = time.perf_counter()
     data = assemble(problem, x)
-    coupling = np.bincount(problem.fd_target, weights=data[problem.fd_entries], minlength=n_free * 2 * k)
-    rhs = -coupling.reshape(n_free, 2 * k)[:, plates]
-    kff = sp.csr_matrix((data[problem.ff_entries], problem.ff_indices, problem.ff_indptr), shape=(n_free, n_free))
+    kff, rhs = free_system(problem, data, plates)
     assembled = time.perf_counter()
     u = np.zeros((n_free, len(plates)))
     factorised = assembled
@@ -400,6 +398,17 @@ def solve(problem: ElectrostaticProblem, x: np.ndarray | None = None, maxwell: b
              np.array2string(capacitance, precision=4), result.assembly_s, result.factorisation_s,
              len(plates), result.solve_s)
     return result
+
+
+def free_system(problem: ElectrostaticProblem, data: np.ndarray, plates: np.ndarray
+                ) -> tuple[sp.csr_matrix, np.ndarray]:
+    """The free-dof matrix and the right-hand sides of ``plates`` at 1 V (the others
+    grounded) from the assembled values ``data`` (:func:`assemble`)."""
+    k, n_free = problem.k, len(problem.free)
+    coupling = np.bincount(problem.fd_target, weights=data[problem.fd_entries], minlength=n_free * 2 * k)
+    rhs = -coupling.reshape(n_free, 2 * k)[:, plates]
+    kff = sp.csr_matrix((data[problem.ff_entries], problem.ff_indices, problem.ff_indptr), shape=(n_free, n_free))
+    return kff, rhs
 
 
 def _check_solution(problem, kff, u, rhs, plates, description) -> None:

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
+from mscap.scene.calibration import NoiseModel
 from mscap.service.store import HISTORY_COLUMNS, finished_ids
 
 __all__ = ["error_estimates", "summary_json", "table", "runs_table", "history_text", "silent_plates",
@@ -56,10 +59,6 @@ def silent_plates(capacitance_pF, noise=None) -> list[tuple[int, float, float]]:
     poses) varies by less than :data:`SILENT_FRACTION` of the per-reading noise σ: as
     ``(plate, mean pF, standard deviation pF)``. The optimiser cannot revive such a plate:
     with no sensitivity to the poses it gets no gradient from either objective."""
-    import numpy as np
-
-    from mscap.scene.calibration import NoiseModel
-
     sigma = (noise or NoiseModel()).additive_std_pF
     c = np.asarray(capacitance_pF, dtype=float)
     if c.ndim != 2 or len(c) < 2 or not np.isfinite(c).all():
@@ -68,11 +67,12 @@ def silent_plates(capacitance_pF, noise=None) -> list[tuple[int, float, float]]:
     return [(int(j), float(c[:, j].mean()), float(spread[j])) for j in np.flatnonzero(spread < SILENT_FRACTION * sigma)]
 
 
-def silent_plates_text(run_id: str, plates) -> str:
+def silent_plates_text(run_id: str, plates, noise=None) -> str:
     """One line per silent plate of the chosen run (empty when there is none)."""
+    additive = (noise or NoiseModel()).additive_pF
     return "\n".join(f"  warning: plate {j} of {run_id} reads {mean:.2f} ± {std:.2g} pF at every design pose, "
-                     f"less than {SILENT_FRACTION:g} of the read-out noise (±2 pF): it tells the poses nothing"
-                     for j, mean, std in plates)
+                     f"less than {SILENT_FRACTION:g} of the read-out noise (±{additive:g} pF): it tells the poses "
+                     f"nothing" for j, mean, std in plates)
 
 
 def _percent(x: float) -> str:
