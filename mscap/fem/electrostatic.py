@@ -67,9 +67,13 @@ class ElectrostaticProblem:
         ``(n_dofs,)`` plate (0..2k-1, bottoms first) of each Dirichlet dof, -1 if free.
     free
         ``(n_free,)`` free dofs, ascending.
-    indptr, indices, entry_to_csr
-        Pattern of the full matrix and the position of each element-matrix entry
-        (``(M · nb²,)``, row-major per element) in its CSR data.
+    indptr, indices
+        Pattern of the full (symmetric) matrix.
+    upper_to_csr, above, below
+        ``(nb (nb + 1) / 2, M)``: the CSR data position of each element's upper-triangle
+        entry (``np.triu_indices(nb)`` order) at ``(dof_a, dof_b)``; the positions of the
+        entries above the diagonal and of their transposes. Assembly sums the elements'
+        upper entries and then each off-diagonal pair (:func:`assemble`).
     ff_entries, ff_indptr, ff_indices
         CSR data positions and pattern of the free-free block.
     fd_entries, fd_target
@@ -87,7 +91,9 @@ class ElectrostaticProblem:
     free: np.ndarray
     indptr: np.ndarray
     indices: np.ndarray
-    entry_to_csr: np.ndarray
+    upper_to_csr: np.ndarray
+    above: np.ndarray
+    below: np.ndarray
     ff_entries: np.ndarray
     ff_indptr: np.ndarray
     ff_indices: np.ndarray
@@ -201,7 +207,7 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Electr
     tets = mesh.tets[~conductor].astype(dof_type)
     dofs = tets if order == 1 else all_dofs[~conductor].astype(dof_type)  # P1: the dofs are the vertices
     eps = permittivity_of_tets(mesh, layers)[~conductor]
-    indptr, indices, entry_to_csr = _csr_pattern(dofs, n_dofs)
+    indptr, indices, upper_to_csr, above, below = _csr_pattern(dofs, n_dofs)
     entry_type, indices = indptr.dtype, indices.astype(dof_type, copy=False)
     csr_row = np.repeat(np.arange(n_dofs, dtype=dof_type), np.diff(indptr))
 
@@ -218,7 +224,7 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Electr
     problem = ElectrostaticProblem(
         mesh=mesh, order=order, tets=tets, dofs=dofs, permittivity=eps, n_dofs=n_dofs,
         plate_of_dof=plate_of_dof, free=free, indptr=indptr, indices=indices,
-        entry_to_csr=entry_to_csr, ff_entries=ff_entries, ff_indptr=ff_indptr,
+        upper_to_csr=upper_to_csr, above=above, below=below, ff_entries=ff_entries, ff_indptr=ff_indptr,
         ff_indices=free_index[indices[ff_entries]], fd_entries=fd_entries, fd_target=fd_target)
     log.info("electrostatic P%d problem: %d dofs (%d free), %d nonzeros, %d dielectric tets (%.2f s)",
              order, n_dofs, len(free), len(indices), len(tets), time.perf_counter() - start)
@@ -258,9 +264,11 @@ def _element_entries(dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.repeat(dofs, nb, axis=1).ravel(), np.tile(dofs, (1, nb)).ravel()
 
 
-def _csr_pattern(dofs: np.ndarray, n_dofs: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The CSR pattern (``indptr``, ``indices``) of a matrix assembled from element
-    matrices on ``dofs`` ``(M, nb)``, and each element entry's position in its data.
+def _csr_pattern(dofs: np.ndarray, n_dofs: int) -> tuple[np.ndarray, ...]:
+    """The CSR pattern (``indptr``, ``indices``) of a symmetric matrix assembled from
+    element matrices on ``dofs`` ``(M, nb)``; the CSR data position of each element's
+    upper-triangle entry ``(nb (nb + 1) / 2, M)``; the positions above the diagonal and
+    those of their transposes.
 
     Built ``BLOCK`` elements at a time, so the temporaries stay a few tens of MB; one
     ``np.unique`` over all ``M nb²`` entries needed about 800 bytes per tet (1.1 GB on the
@@ -271,19 +279,22 @@ def _csr_pattern(dofs: np.ndarray, n_dofs: int) -> tuple[np.ndarray, np.ndarray,
         pattern = pattern + sp.csr_matrix((np.ones(len(rows), dtype=np.float32), (rows, cols)),
                                           shape=(n_dofs, n_dofs))
     pattern.sum_duplicates()  # also sorts the column indices of each row
-    # int32 where it fits (:func:`elements.index_type`): M nb² entries are the largest
-    # array of the problem (P1: 64 of its 160 bytes per tet); assemble() widens one block
-    # at a time.
+    # int32 where it fits (:func:`elements.index_type`): the upper entries' positions are
+    # the largest array of the problem (P1: 40 of its bytes per tet); assemble() widens
+    # one block at a time.
     entry_type = fem.index_type(pattern.nnz + 1)
     indptr = pattern.indptr.astype(entry_type)
     indices = pattern.indices.astype(fem.index_type(n_dofs))
-    keys = np.repeat(np.arange(n_dofs, dtype=np.int64), np.diff(indptr)) * n_dofs + indices
-    nb = dofs.shape[1]
-    entry_to_csr = np.empty(len(dofs) * nb * nb, dtype=entry_type)
+    csr_row = np.repeat(np.arange(n_dofs, dtype=np.int64), np.diff(indptr))
+    keys = csr_row * n_dofs + indices
+    upper_a, upper_b = np.triu_indices(dofs.shape[1])
+    upper_to_csr = np.empty((len(upper_a), len(dofs)), dtype=entry_type)
     for start in range(0, len(dofs), fem.BLOCK):
-        rows, cols = _element_entries(dofs[start:start + fem.BLOCK])
-        entry_to_csr[start * nb * nb:start * nb * nb + len(rows)] = np.searchsorted(keys, rows.astype(np.int64) * n_dofs + cols)
-    return indptr, indices, entry_to_csr
+        block = dofs[start:start + fem.BLOCK].astype(np.int64)
+        upper_to_csr[:, start:start + len(block)] = np.searchsorted(keys, (block[:, upper_a] * n_dofs + block[:, upper_b]).T)
+    above = np.flatnonzero(csr_row < indices)
+    below = np.searchsorted(keys, indices[above].astype(np.int64) * n_dofs + csr_row[above]).astype(entry_type)
+    return indptr, indices, upper_to_csr, above.astype(entry_type), below
 
 
 def _name(plate: int, k: int) -> str:
@@ -303,30 +314,39 @@ def _positions(problem: ElectrostaticProblem, x) -> np.ndarray:
 def assemble(problem: ElectrostaticProblem, x: np.ndarray | None = None) -> np.ndarray:
     """CSR data (pattern ``problem.indptr/indices``) of the stiffness matrix at ``x``.
 
+    The matrix is symmetric: the elements' upper-triangle entries are summed into their
+    CSR positions (an element's ``(a, b)`` lands above or below the diagonal as its dofs
+    fall), then each off-diagonal pair is summed and written to both, so the two halves
+    are equal bit for bit.
+
     Raises
     ------
     ElectrostaticError
         If a dielectric tet is inverted or degenerate at ``x``.
     """
     x = _positions(problem, x)
+    rows = np.ascontiguousarray(x.T)
     data = np.zeros(len(problem.indices))
-    nb2 = problem.dofs.shape[1] ** 2
     # BLOCK tets at a time: the element matrices of all tets at once were the largest
     # temporary of an evaluation (M nb² doubles, 145 MB on the glove's finer mesh).
     for start in range(0, len(problem.tets), fem.BLOCK):
         block = slice(start, start + fem.BLOCK)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # degenerate tets: reported below
-            local = fem.stiffness(problem.element, x, problem.tets[block], problem.permittivity[block])
+            upper = fem.upper_stiffness(problem.element, rows, problem.tets[block], problem.permittivity[block])
         # A vertex's diagonal entry ε vol ∫|∇N_0|² has the sign of the volume (ε > 0): a
         # non-positive or non-finite one marks an inverted or degenerate tet, without a
         # second pass over all tets for their volumes (a third of the assembly's time).
-        corner = local[:, 0, 0]
+        corner = upper[0]
         bad = np.flatnonzero(~(np.isfinite(corner) & (corner > 0)))
         if len(bad):
             _raise_inverted(problem, x, start + bad)
-        entries = problem.entry_to_csr[start * nb2:start * nb2 + local.size]
+        entries = problem.upper_to_csr[:, block]
         lo, hi = int(entries.min()), int(entries.max()) + 1  # a block's rows are a window of the CSR data
-        data[lo:hi] += np.bincount(entries.astype(np.intp) - lo, weights=local.ravel(), minlength=hi - lo)
+        data[lo:hi] += np.bincount((entries.astype(np.intp) - lo).ravel(), weights=upper.ravel(), minlength=hi - lo)
+    for start in range(0, len(problem.above), fem.BLOCK * 4):  # in place, a few MB at a time
+        above, below = problem.above[start:start + fem.BLOCK * 4], problem.below[start:start + fem.BLOCK * 4]
+        data[above] += data[below]
+        data[below] = data[above]
     return data
 
 

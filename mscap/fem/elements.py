@@ -26,8 +26,8 @@ import numpy as np
 
 from mscap.fem.profile import timed
 
-__all__ = ["Element", "P1", "P2", "element", "basis_gradients", "dof_table", "jacobians", "stiffness", "energy_vjp",
-           "index_type"]
+__all__ = ["Element", "P1", "P2", "element", "basis_gradients", "dof_table", "jacobians", "stiffness",
+           "upper_stiffness", "energy_vjp", "index_type"]
 
 #: Elements per block in the vectorised kernels (bounds temporary memory, not a loop
 #: over elements: each block is processed by whole-array operations).
@@ -157,17 +157,6 @@ def jacobians(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndar
     return inv, det / 6.0
 
 
-def _cofactors(points: np.ndarray, tets: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-    """``det J · ∇λ_a`` for the four vertices, each as (3, M) component rows, and ``det J``.
-
-    The rows of ``J⁻¹`` are ∇λ1..3 = (e1×e2, e2×e0, e0×e1) / det J, and ∇λ0 = −(∇λ1 + ∇λ2 + ∇λ3).
-    """
-    e0, e1, e2 = _edges(points, tets)
-    c1, c2, c3 = (np.array(_cross(a, b)) for a, b in ((e1, e2), (e2, e0), (e0, e1)))
-    det = e0[0] * c1[0] + e0[1] * c1[1] + e0[2] * c1[2]
-    return [-(c1 + c2 + c3), c1, c2, c3], det
-
-
 @timed("assembly")
 def stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
     """Element matrices ``coefficient · ∫ ∇N_i · ∇N_j`` for all tets, ``(M, nb, nb)``.
@@ -192,18 +181,51 @@ def _tensor_stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coeffic
     return out
 
 
+@timed("assembly")
+def upper_stiffness(el: Element, rows: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    """The upper triangles of :func:`stiffness`'s element matrices, entry by entry in the
+    order of ``np.triu_indices(nb)``, as rows ``(nb (nb + 1) / 2, M)``: all a symmetric
+    assembly needs (10 of 16 P1 entries, 55 of 100 P2 ones).
+
+    ``rows`` are the vertex positions as contiguous component rows ``(3, N)`` (``x.T``,
+    made contiguous once per assembly). For P1 the entries are computed row by row on
+    component rows, 1.7× faster with the scatter than full matrices (measured on 242k
+    tets, docs/performance.md §2)."""
+    if el.order == 1:
+        return _p1_upper_stiffness(rows, tets, coefficient)
+    upper = np.triu_indices(el.n_basis)
+    return _tensor_stiffness(el, rows.T, tets, coefficient)[:, upper[0], upper[1]].T
+
+
+def _p1_upper_stiffness(rows: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    """:func:`upper_stiffness` for P1: ``c (c_a · c_b) / (6 det J)``, ``c_a = det J ∇λ_a``."""
+    corners = np.ascontiguousarray(tets.T)  # a contiguous index row per vertex: faster gathers
+    p0 = rows[:, corners[0]]
+    e0, e1, e2 = (rows[:, corners[a]] - p0 for a in (1, 2, 3))
+    c1, c2, c3 = _cross(e1, e2), _cross(e2, e0), _cross(e0, e1)
+    det = e0[0] * c1[0] + e0[1] * c1[1] + e0[2] * c1[2]
+    c = (tuple(-(c1[i] + c2[i] + c3[i]) for i in range(3)), c1, c2, c3)
+    scale = coefficient / (6.0 * det)
+    out = np.empty((10, len(det)))
+    for n, (a, b) in enumerate(zip(*np.triu_indices(4))):
+        entry = out[n]
+        np.multiply(c[a][0], c[b][0], out=entry)
+        entry += c[a][1] * c[b][1]
+        entry += c[a][2] * c[b][2]
+        entry *= scale
+    return out
+
+
 def _p1_stiffness(points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
-    """P1: ``c vol ∇λ_a · ∇λ_b = c (c_a · c_b) / (6 det J)`` with ``c_a = det J ∇λ_a``, on
-    component rows (1.9× the general path's speed, measured on 359k tets)."""
+    """P1: the full matrices from :func:`_p1_upper_stiffness` (1.9× the general path's
+    speed, measured on 359k tets)."""
+    rows = np.ascontiguousarray(np.asarray(points, dtype=float).T)
     out = np.empty((len(tets), 4, 4))
     for start in range(0, len(tets), BLOCK):
         block = slice(start, start + BLOCK)
-        c, det = _cofactors(points, tets[block])
-        scale = coefficient[block] / (6.0 * det)
-        part = out[block]
-        for a in range(4):
-            for b in range(a, 4):
-                part[:, a, b] = part[:, b, a] = (c[a][0] * c[b][0] + c[a][1] * c[b][1] + c[a][2] * c[b][2]) * scale
+        upper = _p1_upper_stiffness(rows, tets[block], coefficient[block])
+        for n, (a, b) in enumerate(zip(*np.triu_indices(4))):
+            out[block, a, b] = out[block, b, a] = upper[n]
     return out
 
 
@@ -265,33 +287,53 @@ def _quadrature_energy_vjp(el: Element, points: np.ndarray, tets: np.ndarray, do
 def _p1_energy_vjp(points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray, fields: np.ndarray,
                    w: np.ndarray) -> np.ndarray:
     """:func:`energy_vjp` for P1 (one gradient per tet), on component rows with the fields
-    as rows ``(m, n_dofs)``: 2.7× the general path's speed (measured on 359k tets, 4 fields).
+    as rows ``(m, n_dofs)``: 2.7× the general path's speed (measured on 359k tets, 4 fields),
+    and 1.2–1.4× more since the vertex terms go through one symmetric 3 × 3 matrix per tet
+    (242k tets, docs/performance.md §2).
 
     With ``c_a = det J ∇λ_a`` and ``det J · g = Σ_a φ_a c_a``, the vertex term
-    ``vol (tr(T) I − 2T) ∇λ_a`` is ``(tr(T') c_a − 2 T' c_a) / (6 det J²)`` where ``T'``
-    is ``T`` built from ``det J · g``.
+    ``vol (tr(T) I − 2T) ∇λ_a`` is ``M c_a`` with ``M = (tr(T') I − 2 T') / (6 det J²)``,
+    ``T'`` being ``T`` built from ``det J · g``; the four terms sum to zero (``Σ_a c_a = 0``).
     """
     out = np.zeros((3, len(points)))
-    rows = np.ascontiguousarray(fields.T)  # (m, n_dofs)
+    rows = np.ascontiguousarray(np.asarray(points, dtype=float).T)
+    phis = np.ascontiguousarray(fields.T)  # (m, n_dofs)
     for start in range(0, len(tets), BLOCK):
-        block = slice(start, start + BLOCK)
-        vertex = tets[block]
-        c, det = _cofactors(points, vertex)
-        phi0 = rows[:, vertex[:, 0]]
-        d = [rows[:, vertex[:, a]] - phi0 for a in (1, 2, 3)]  # (m, B) each; Σ_a c_a = 0
-        grad = [d[0] * c[1][i] + d[1] * c[2][i] + d[2] * c[3][i] for i in range(3)]  # det J · g_i
+        corners = np.ascontiguousarray(tets[start:start + BLOCK].T)  # contiguous index rows: faster gathers
+        p0 = rows[:, corners[0]]
+        e0, e1, e2 = (rows[:, corners[a]] - p0 for a in (1, 2, 3))
+        c = (None, _cross(e1, e2), _cross(e2, e0), _cross(e0, e1))  # c_0 = −(c_1 + c_2 + c_3) is not needed
+        det = e0[0] * c[1][0] + e0[1] * c[1][1] + e0[2] * c[1][2]
+        phi0 = phis[:, corners[0]]
+        d = [None] + [phis[:, corners[a]] - phi0 for a in (1, 2, 3)]  # (m, B) each
+        grad = []  # det J · g_i, (m, B) each
+        for i in range(3):
+            g = d[1] * c[1][i]
+            g += d[2] * c[2][i]
+            g += d[3] * c[3][i]
+            grad.append(g)
         mixed = [w @ g for g in grad]
-        t = np.empty((3, 3, len(det)))
+        t = {}
         for i in range(3):
             for j in range(i, 3):
-                t[i, j] = t[j, i] = (grad[i] * mixed[j]).sum(axis=0)
+                t[i, j] = t[j, i] = np.einsum("fb,fb->b", grad[i], mixed[j])
+        scale = coefficient[start:start + BLOCK] / (6.0 * det * det)
         trace = t[0, 0] + t[1, 1] + t[2, 2]
-        scale = coefficient[block] / (6.0 * det * det)
+        m = {}
+        for i in range(3):
+            for j in range(i, 3):
+                m[i, j] = m[j, i] = ((trace - 2 * t[i, j]) if i == j else -2 * t[i, j]) * scale
         local = np.empty((3, 4, len(det)))
-        for a in range(4):
-            for i in range(3):
-                local[i, a] = (trace * c[a][i] - 2 * (t[i, 0] * c[a][0] + t[i, 1] * c[a][1] + t[i, 2] * c[a][2])) * scale
-        vertices = vertex.T.ravel()
+        for i in range(3):
+            for a in (1, 2, 3):
+                entry = local[i, a]
+                np.multiply(m[i, 0], c[a][0], out=entry)
+                entry += m[i, 1] * c[a][1]
+                entry += m[i, 2] * c[a][2]
+            np.add(local[i, 1], local[i, 2], out=local[i, 0])
+            local[i, 0] += local[i, 3]
+            np.negative(local[i, 0], out=local[i, 0])
+        vertices = corners.ravel()
         for i in range(3):
             out[i] += np.bincount(vertices, weights=local[i].ravel(), minlength=len(points))
     return out.T

@@ -208,6 +208,26 @@ def test_p1_kernels_equal_the_general_ones(problems, two_plates):
 
 
 @ORDERS
+def test_upper_entries_are_the_element_matrices_upper_triangles(problems, two_plates, order):
+    """What assembly scatters: the upper triangles (np.triu_indices order) of the full
+    element matrices, from the P1 fast path or the general one."""
+    problem = problems[order]
+    x = perturbed(two_plates, 0.02)
+    full = fem.stiffness(problem.element, x, problem.tets, problem.permittivity)
+    upper = fem.upper_stiffness(problem.element, np.ascontiguousarray(x.T), problem.tets, problem.permittivity)
+    a, b = np.triu_indices(problem.dofs.shape[1])
+    np.testing.assert_allclose(upper, full[:, a, b].T, rtol=1e-12, atol=1e-14 * np.abs(full).max())
+
+
+@ORDERS
+def test_assembled_matrix_is_symmetric_bit_for_bit(problems, two_plates, order):
+    problem = problems[order]
+    data = es.assemble(problem, perturbed(two_plates))
+    matrix = sp.csr_matrix((data, problem.indices, problem.indptr), shape=(problem.n_dofs,) * 2)
+    assert (matrix != matrix.T).nnz == 0
+
+
+@ORDERS
 def test_blockwise_assembly_equals_one_shot_assembly(two_plates, order, monkeypatch):
     """The pattern and values built a few tets at a time (to bound memory) are those of
     scipy's COO → CSR sum over all element matrices at once, for any block size."""
@@ -407,7 +427,8 @@ def test_index_arrays_are_int32_and_give_the_int64_capacitances(problems, two_pl
     # (k = 6) the electrostatic problem held 401 MB with int64 and 348 MB with int32
     # indices (docs/performance.md §9). The narrower type must not change a bit.
     problem = problems[order]
-    names = ("tets", "dofs", "indices", "entry_to_csr", "ff_entries", "ff_indices", "fd_entries", "fd_target", "free")
+    names = ("tets", "dofs", "indices", "upper_to_csr", "above", "below", "ff_entries",
+             "ff_indices", "fd_entries", "fd_target", "free")
     assert {name: getattr(problem, name).dtype for name in names} == {name: np.dtype(np.int32) for name in names}
     wide = replace(problem, **{name: getattr(problem, name).astype(np.int64)
                                for name in ("tets", "dofs", "indices", "ff_indices", "fd_target")})
