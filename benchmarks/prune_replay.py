@@ -31,11 +31,15 @@ ROOT = Path(__file__).resolve().parents[1]
 RULES = ((2, 3), (2, 4), (3, 3), (3, 4), (5, 3), (5, 4), (10, 3))
 
 
-def replay(runs, kind: str, rule, leave_out=frozenset()) -> tuple[float, dict[int, float]]:
+def replay(runs, kind: str, rule, leave_out=frozenset(), lean_checks: bool = False) -> tuple[float, dict[int, float]]:
     """Cost fraction and per-k loss of the best metric (> 0: worse) under ``rule``, decided
     by the master's own table (:meth:`mscap.service.pruning.PruneRule.table`): starts in
     index order, largest k first, as one worker of the service runs them (the envelope
-    rule shares gains across k, so the order matters to it; the rung table is per k)."""
+    rule shares gains across k, so the order matters to it; the rung table is per k).
+    ``lean_checks``: a finishing start that an earlier finished start of its k beats skips
+    its finer-mesh check, as the service does since 2026-12-04
+    (:func:`mscap.service.multistart.beaten_by`)."""
+    from mscap.service.multistart import Finished, beaten_by
     from mscap.service.pruning import history_values
 
     table = rule.table(kind)
@@ -46,7 +50,8 @@ def replay(runs, kind: str, rule, leave_out=frozenset()) -> tuple[float, dict[in
             stop = next((step for step, value in sorted(values.items()) if not table.decide(k, step, value).keep),
                         None)
             if stop is None:
-                cost += r.wall_s + _check(r)
+                beaten = lean_checks and beaten_by(Finished(r.id, k, r.metric, r.bound_mm), survivors.get(k, []))
+                cost += r.wall_s + (0.0 if beaten else _check(r))
                 survivors.setdefault(k, []).append(r)
                 table.finished(k, values, final)
             else:
@@ -130,6 +135,9 @@ def main() -> None:
     parser.add_argument("file", help="an unpruned results file (every start ran to its end)")
     parser.add_argument("scene", help="its scene file (for the score and the repeated starts)")
     parser.add_argument("--skip-repeats", action="store_true", help="leave out the repeated Lloyd starts")
+    parser.add_argument("--lean-checks", action="store_true",
+                        help="finishing starts already beaten within their k skip their finer-mesh check, as the "
+                             "service does (the cost stays relative to the whole file, every check included)")
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
     from mscap.scene import load_scene
@@ -163,13 +171,14 @@ def main() -> None:
         for name, how in (("ASHA", replay), ("synchronous", replay_synchronous)):
             if first == 0 and how is replay_synchronous:
                 continue
-            cost, loss = how(runs, kind, PruneRule(first, eta), leave_out)
+            cost, loss = how(runs, kind, PruneRule(first, eta), leave_out,
+                             **({"lean_checks": args.lean_checks} if how is replay else {}))
             label = "none" if first == 0 else f"{name} {first}:{eta}"
             print(f"| {label} | {cost:.2f} | " + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks)
                   + " |")
     if kind != "J":
         for every in (3, 5, 10):
-            cost, loss = replay(runs, kind, PruneRule(every, envelope=True), leave_out)
+            cost, loss = replay(runs, kind, PruneRule(every, envelope=True), leave_out, args.lean_checks)
             label = f"envelope every {every} steps"
             print(f"| {label} | {cost:.2f} | " + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks)
                   + " |")

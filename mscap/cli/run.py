@@ -26,6 +26,9 @@ def add_parser(sub) -> None:
     p.add_argument("--keep-repeated-starts", action="store_true",
                    help="also run the Lloyd starts whose initial layout is an earlier start's of their k, "
                         "plate for plate (skipped by default: the same run bit for bit)")
+    p.add_argument("--check-all-runs", action="store_true",
+                   help="run the finer-mesh check on every run (default: only on runs not already beaten by a "
+                        "finished run of their k, the only ones that can be a k's best)")
     p.add_argument("--max-iterations", type=int, help="L-BFGS iterations per level (default: the scene's)")
     p.add_argument("--force", action="store_true", help="start the file over even if it holds another scene")
     p.add_argument("--retry-failed", action="store_true", help="run the starts stored as failed again")
@@ -46,7 +49,8 @@ def run(args) -> int:
     from mscap.scene.loader import with_overrides
 
     comm = MPI.COMM_WORLD
-    scene = with_overrides(load_scene_for(args), args.starts_per_k, args.prune, args.keep_repeated_starts)
+    scene = with_overrides(load_scene_for(args), args.starts_per_k, args.prune, args.keep_repeated_starts,
+                           args.check_all_runs)
     index_of = {c.id: i % max(scene.multistart.starts_per_k, 1) for i, c in enumerate(configurations(scene))}
     lo, hi = 0, None
     if args.seeds:

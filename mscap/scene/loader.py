@@ -628,13 +628,15 @@ def select_poses(scene: Scene, names: list[str]) -> Scene:
 
 
 def with_overrides(scene: Scene, starts_per_k: int | None = None, prune: str | None = None,
-                   keep_repeated_starts: bool = False) -> Scene:
+                   keep_repeated_starts: bool = False, check_all_runs: bool = False) -> Scene:
     """``scene`` with ``[multistart]`` values from the command line (``mscap run
-    --starts-per-k N --prune STEP:ETA --keep-repeated-starts``; ``--prune envelope[:EVERY]``
-    for the envelope rule), checked like the file's."""
+    --starts-per-k N --prune STEP:ETA --keep-repeated-starts --check-all-runs``; ``--prune
+    envelope[:EVERY]`` for the envelope rule), checked like the file's."""
     changes = {}
     if keep_repeated_starts:
         changes["skip_repeated_starts"] = False
+    if check_all_runs:
+        changes["check_all_runs"] = True
     if starts_per_k is not None:
         changes["starts_per_k"] = starts_per_k
     if prune is not None:

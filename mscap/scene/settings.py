@@ -292,7 +292,10 @@ class MultistartSettings:
     finished start made from there would leave it below the best of its k (``prune_eta``
     unused; the safe rule, docs/performance.md §8). ``skip_repeated_starts``: leave
     out the Lloyd starts whose initial layout is an earlier one's of their k, plate for
-    plate (:func:`mscap.service.selection.repeated_starts`: the same run bit for bit)."""
+    plate (:func:`mscap.service.selection.repeated_starts`: the same run bit for bit).
+    ``check_all_runs``: run the finer-mesh check on every run; by default a run already
+    beaten by a finished run of its k, which can never be the best of its k that the
+    selection checks, skips it (:func:`mscap.service.multistart.run_start`)."""
 
     k_min: int = 2
     k_max: int = 6
@@ -305,6 +308,7 @@ class MultistartSettings:
     prune_eta: int = 3
     prune_rule: str = "rungs"
     skip_repeated_starts: bool = True
+    check_all_runs: bool = False
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,12 @@ the number of ranks or the order in which runs finish — unless the scene prune
 (``[multistart] prune_first_step``, :mod:`mscap.service.pruning`): then each start asks the
 master at its rungs whether it is still among the best of its k (or, with ``prune_rule =
 "envelope"``, whether any path seen so far would lift it to the best of its k), and a
-dominated one stops and is stored as pruned. A start that raises is stored as failed
+dominated one stops and is stored as pruned. A finished start asks the master once more,
+before its finer-mesh check: a run that a finished run of its k already beats can never
+be the best of its k, the only runs whose check the selection reads, so it is stored
+unchecked (``[multistart] check_all_runs = true`` checks every run; which runs are checked
+then depends on the order in which runs finish, their results do not). A start that
+raises is stored as failed
 with its error text; the others go on. While starts run, the master
 prints a status line of its busy workers after :data:`~mscap.service.heartbeat.HEARTBEAT_S`
 seconds without a progress line (:mod:`mscap.service.heartbeat`). SIGTERM (what SLURM sends
@@ -33,7 +38,7 @@ import logging
 import math
 import time
 import traceback
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
 from mscap.fem.simulate import release_freed_memory
@@ -45,15 +50,43 @@ from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
 from mscap.service.pruning import Envelope, PruneRule, Rungs, Verdict, history_values, prune_rule, score, \
     score_kind
 from mscap.service.selection import StartConfig, configurations, repeated_starts, select
-from mscap.service.store import failed_record, finished_ids, open_store, record_from_result, run_summaries, \
-    run_summary, write_run, write_selection
+from mscap.service.store import failed_record, finished_ids, open_store, read_run, record_from_result, \
+    run_summaries, run_summary, write_run, write_selection
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["run_start", "run_multistart", "stored_table"]
+__all__ = ["run_start", "run_check", "run_multistart", "stored_table", "Finished", "CheckTask", "beaten_by"]
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Finished:
+    """A finished start's question before its finer-mesh check: is it already beaten?"""
+
+    id: str
+    k: int
+    metric: float
+    bound_mm: float
+
+
+def beaten_by(question: Finished, runs) -> str | None:
+    """The id of a stored run of the same k that :func:`~mscap.service.selection.select`
+    ranks above ``question``'s run whatever else finishes (ok, not pruned; a smaller
+    read-back bound when the runs have one, else a larger min L1 distance; ties to the
+    smaller id), or ``None``: then the run may still be the best of its k and needs its
+    check."""
+    by_bound = math.isfinite(question.bound_mm) and question.bound_mm > 0
+
+    def score(metric: float, bound_mm: float) -> float:  # larger is better, as select() ranks
+        return (1.0 / bound_mm if bound_mm > 0 else math.nan) if by_bound else metric
+
+    mine = score(question.metric, question.bound_mm)
+    better = [r for r in runs if r.k == question.k and r.ok and not r.pruned and r.id != question.id
+              and math.isfinite(r.metric) and math.isfinite(score(r.metric, r.bound_mm))
+              and (score(r.metric, r.bound_mm), question.id) > (mine, r.id)]
+    return None if not better else min(better, key=lambda r: (-score(r.metric, r.bound_mm), r.id)).id
 
 
 def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None,
@@ -111,16 +144,58 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
                              time.perf_counter() - start, rank)
     if not scene.multistart.error_estimate or record.pruned:
         return record
+    return _with_check(scene, record, final, equilibria, bound, ask)
+
+
+def _with_check(scene: Scene, record, final, equilibria, bound, ask):
+    """``record`` with its finer-mesh check (``scene``: the start's design scene), unless
+    the master says a finished run of its k beats it; a failed check leaves NaN."""
+    if ask is not None and not scene.multistart.check_all_runs:
+        try:
+            beaten = ask(Finished(record.id, record.k, record.metric, record.bound_mm))
+        except farm.Abandoned:  # the job is stopping: keep the finished run, unchecked
+            log.warning("start %s: stored without its finer-mesh check (the job is stopping)", record.id)
+            return record
+        if beaten is not None:
+            log.info("start %s: no finer-mesh check, %s of its k is better", record.id, beaten)
+            return record
     try:
         check = estimate_error(scene, final, record.final_capacitance_pF, equilibria)
     except Exception as exc:  # the run stands; only its accuracy is unknown
         log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
-                    config.id, type(exc).__name__, exc)
+                    record.id, type(exc).__name__, exc)
         return record
     # The bound of the same design on the finer mesh: the read-back scenes' k is checked on it
     # as the others' is on the finer min L1 (mscap.service.selection).
     return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s,
                    finer_bound_mm=math.nan if bound is None else bound.value(check.capacitance_pF))
+
+
+@dataclass(frozen=True)
+class CheckTask:
+    """A stored run whose finer-mesh check the selection needs: a k's best left unchecked
+    (its job stopped between the run and its check, or the check failed)."""
+
+    record: object  # a RunRecord
+
+    @property
+    def id(self) -> str:
+        return self.record.id
+
+
+def run_check(scene: Scene, record, ask: Callable | None = None):
+    """``record`` (a stored run) with the finer-mesh check its start would have ended with,
+    from a cold start on the finer mesh (the run's equilibria are gone). The master is
+    asked first, as a start asks: a run beaten meanwhile stays unchecked."""
+    from mscap.design.readback import design_scene
+    from mscap.geometry.initial import initial_layout
+    from mscap.geometry.layout import Layout
+    from mscap.scene.sizing import with_layout
+
+    start_scene = design_scene(with_layout(scene, initial_layout(scene, record.k, record.seed, record.init)))
+    bound = None if start_scene.design_family is None else ReconstructionBound(start_scene.design_family,
+                                                                               start_scene.optimizer.tau_mm)
+    return _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None, bound, ask)
 
 
 def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
@@ -160,7 +235,11 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
         return _master(scene, path, comm.Get_size(), force, retry_failed, select_configs, execute, stop,
                        Heartbeat(progress, heartbeat_s))
 
-    return farm.run(comm, lambda ask: (lambda config: run_start(scene, config, rank, max_iterations, ask)), master,
+    def work(ask):
+        return lambda task: run_check(scene, task.record, ask) if isinstance(task, CheckTask) else \
+            run_start(scene, task, rank, max_iterations, ask)
+
+    return farm.run(comm, work, master,
                     "stopped: the finished runs are stored; rerun the same command to complete the rest",
                     progress or (lambda m: None))
 
@@ -193,9 +272,20 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         # leaves the short ones to fill the tail (jobs/quick.toml on 2 workers: busy
         # fraction 0.88 → 0.94, docs/performance.md §4). Results do not depend on the order.
         todo.sort(key=lambda c: -c.k)
+        # A k's best stored without its check (a stop between the run and its check, or a
+        # failed check): checked after the starts, if still the best (run_check asks).
+        selected = {c.id for c in configs if select_configs is None or select_configs(c)}
+        pending = [] if not ms.error_estimate else \
+            [CheckTask(read_run(store, row.best_run)) for row in selection().per_k
+             if row.best_run in selected and math.isnan(summaries[row.best_run].finer_metric)]
+        todo = todo + pending
         total, started = len(todo), time.perf_counter()
         say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
             f"worker{'s' if size > 2 else ''}")
+        if pending:
+            say(f"{len(pending)} of them the finer-mesh check{'s' if len(pending) > 1 else ''} of "
+                f"{', '.join(t.id for t in pending)}: the best of {'their' if len(pending) > 1 else 'its'} k, "
+                f"stored unchecked")
         if skipped:
             say(f"skipped {len(skipped)} Lloyd start{'s' if len(skipped) > 1 else ''} whose initial layout repeats "
                 f"an earlier start of its k: {', '.join(skipped)}")
@@ -218,10 +308,20 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
                 metric += f", read-back bound {rec.initial_bound_mm:.3g} -> {rec.bound_mm:.3g} mm"
             if rec.ok and math.isfinite(rec.error_estimate):
                 metric += f" (finer mesh: C within {100 * rec.error_estimate:.2g} %)"
+            elif rec.status == "ok" and ms.error_estimate:
+                metric += (f" (no finer-mesh check: {beaten[rec.id]} of its k is better)" if rec.id in beaten else
+                           " (no finer-mesh check: it failed, or the job is stopping)")
             say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
                 f"{total - done} left, ETA {eta:.0f} s")
 
-        def answer(progress: Progress) -> Verdict | None:
+        beaten = {}  # run -> the run of its k that beat it before its check
+
+        def answer(progress: Progress | Finished) -> Verdict | str | None:
+            if isinstance(progress, Finished):
+                beaten[progress.id] = beaten_by(progress, summaries.values())
+                if beaten[progress.id] is None:
+                    del beaten[progress.id]
+                return beaten.get(progress.id)
             heartbeat.update(progress)
             return rungs.decide(progress.k, progress.iteration, progress.score) if progress.rung else None
 

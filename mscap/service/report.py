@@ -144,6 +144,8 @@ def history_text(record) -> str:
                      f"({_percent(record.metric_error)} off), capacitances within {_percent(record.error_estimate)}, "
                      f"pose-to-pose distances within {_percent(record.signal_error)} "
                      f"(check took {record.error_estimate_wall_s:.1f} s)")
+    elif record.status == "ok":
+        lines.append("no finer-mesh check (a finished run of its k was better, or the check failed or was off)")
     names = list(HISTORY_COLUMNS)
     lines.append("\t".join(names))
     columns = [record.history[n] for n in names]

@@ -55,7 +55,8 @@ RUN_ATTRS = {
     "rank": ("int", "MPI rank of the worker that ran it (0 without MPI)"),
     "metric_pF": ("float", "final min over pose pairs of the L1 distance of capacitance vectors (NaN if failed)"),
     "error_estimate": ("float", "max relative difference of the final capacitances from the same design's on a "
-                                "mesh one level finer (mscap.service.accuracy; NaN if not checked)"),
+                                "mesh one level finer (mscap.service.accuracy; NaN if not checked: a run already "
+                                "beaten within its k, unless `check_all_runs`)"),
     "finer_metric_pF": ("float", "metric_pF of the final design on that finer mesh (NaN if not checked)"),
     "error_estimate_wall_s": ("float", "wall time of that check (s), not part of wall_s (NaN if not checked)"),
     "bound_mm": ("float", "final read-back bound: soft max over the design family's grid of the Cramér–Rao "

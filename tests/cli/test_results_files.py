@@ -25,11 +25,16 @@ def scene(free_poses_scene):
 
 @pytest.fixture
 def synthetic_starts(monkeypatch):
-    """``mscap run`` with every start an instant synthetic record."""
+    """``mscap run`` with every start an instant synthetic record, checked (a k's best
+    stored unchecked would get a real finer-mesh check on resume)."""
+    from dataclasses import replace
+
     from mscap.service import multistart
 
-    monkeypatch.setattr(multistart, "run_start", lambda scene, config, *a, **k:
-                        synthetic_record(config.k, config.seed, config.init))
+    def start(scene, config, *args, **kwargs):
+        record = synthetic_record(config.k, config.seed, config.init)
+        return replace(record, finer_capacitance_pF=record.final_capacitance_pF * 1.001, error_estimate_wall_s=1.0)
+    monkeypatch.setattr(multistart, "run_start", start)
 
 
 def stored(path, scene, runs=((2, 2000), (3, 3000))) -> None:

@@ -87,8 +87,9 @@ def test_three_ranks_write_a_complete_file(three_ranks, capsys):
 
 
 @needs_mpirun
-def test_every_run_stores_its_finer_mesh_check(three_ranks, scene_file):
-    """The stored check is the final layout simulated on ``finer(scene)``."""
+def test_the_best_run_of_each_k_stores_its_finer_mesh_check(three_ranks, scene_file):
+    """The stored check is the final layout simulated on ``finer(scene)``; a run left
+    unchecked is beaten by a checked run of its k."""
     from dataclasses import replace
 
     from mscap.service.accuracy import finer, relative_difference
@@ -99,7 +100,13 @@ def test_every_run_stores_its_finer_mesh_check(three_ranks, scene_file):
     out, _ = three_ranks
     scene = load_scene(scene_file)
     with read_store(out) as store:
-        record = read_run(store, "k2_s2000_lloyd")
+        runs = [read_run(store, rid) for rid in sorted(finished_ids(store))]
+    for k in (2, 3):
+        mine = [r for r in runs if r.k == k]
+        best = max(mine, key=lambda r: r.metric)
+        assert best.checked
+        assert all(r.checked or r.metric < best.metric for r in mine)
+    record = max((r for r in runs if r.k == 2), key=lambda r: r.metric)
     layout = Layout(tuple(record.final_outlines))
     fine = simulate(replace(finer(scene), layout=layout)).capacitance_pF
     np.testing.assert_allclose(record.finer_capacitance_pF, fine, rtol=1e-9)
@@ -170,6 +177,102 @@ def test_an_interrupted_job_resumes_with_only_the_missing_runs(scene_file, tmp_p
     store = read_store(out)
     assert len(finished_ids(store)) == 4
     assert {rid: read_run(store, rid).wall_s for rid in before} == before  # not redone
+
+
+def test_a_beaten_run_is_the_one_kind_left_unchecked():
+    """Only a run that select() ranks below a finished run of its k, whatever else
+    finishes, skips its check: by the bound when runs have one, else by the min L1
+    distance, ties to the smaller id; pruned, failed and other-k runs never beat it."""
+    from mscap.service.multistart import Finished, beaten_by
+    from mscap.service.selection import RunSummary
+
+    nan = float("nan")
+    runs = [RunSummary("k2_s2000_lloyd", 2, True, 5.0, 1.0), RunSummary("k2_s2001_random", 2, True, 7.0, 1.0),
+            RunSummary("k2_s2002_random", 2, True, 9.0, 1.0, pruned=True),
+            RunSummary("k2_s2003_random", 2, False, nan, 1.0), RunSummary("k3_s3000_lloyd", 3, True, 99.0, 1.0)]
+    assert beaten_by(Finished("k2_s2004_random", 2, 6.0, nan), runs) == "k2_s2001_random"
+    assert beaten_by(Finished("k2_s2004_random", 2, 7.5, nan), runs) is None  # the new best: checked
+    assert beaten_by(Finished("k2_s2004_random", 2, 7.0, nan), runs) == "k2_s2001_random"  # a tie, larger id
+    assert beaten_by(Finished("k2_s2000_random", 2, 7.0, nan), runs) is None  # a tie, smaller id
+    assert beaten_by(Finished("k4_s4000_lloyd", 4, 1.0, nan), runs) is None  # the first of its k
+    # Read-back scenes rank by the bound (smaller is better), not by the min L1 distance.
+    bound = [RunSummary("k2_s2000_lloyd", 2, True, 5.0, 1.0, bound_mm=0.30),
+             RunSummary("k2_s2001_random", 2, True, 9.0, 1.0, bound_mm=0.40)]
+    assert beaten_by(Finished("k2_s2002_random", 2, 20.0, 0.35), bound) == "k2_s2000_lloyd"
+    assert beaten_by(Finished("k2_s2002_random", 2, 1.0, 0.29), bound) is None
+
+
+def test_only_runs_that_can_be_a_ks_best_are_checked(scene_file, tmp_path):
+    """One process runs the starts in a fixed order (k = 3 first, then by seed): the first
+    run of each k is checked, a later one only if it beats the earlier; every run is with
+    check_all_runs, and the selection and its verdict are the same either way."""
+    from dataclasses import replace
+
+    from mpi4py import MPI
+
+    from mscap.service import multistart
+    from mscap.scene import load_scene
+
+    scene = load_scene(scene_file)
+    results = {}
+    for check_all in (False, True):
+        everything = replace(scene, multistart=replace(scene.multistart, check_all_runs=check_all))
+        out = tmp_path / f"check_all_{check_all}.h5"
+        summary = multistart.run_multistart(everything, str(out), MPI.COMM_SELF, max_iterations=1)
+        with read_store(out) as store:
+            results[check_all] = (summary["choice"], {rid: read_run(store, rid) for rid in finished_ids(store)})
+    (choice, lean), (choice_all, every) = results[False], results[True]
+    assert all(r.checked for r in every.values())
+    for first, second in (("k3_s3000_lloyd", "k3_s3001_random"), ("k2_s2000_lloyd", "k2_s2001_random")):
+        assert lean[first].checked
+        assert lean[second].checked == (lean[second].metric > lean[first].metric)
+        np.testing.assert_array_equal(lean[second].final_capacitance_pF, every[second].final_capacitance_pF)
+    assert sum(not r.checked for r in lean.values()) >= 1  # the tiny scene leaves at least one unchecked
+    assert choice == choice_all and "resolved" in choice
+
+
+def test_a_best_run_left_unchecked_is_checked_when_the_job_resumes(scene_file, tmp_path, monkeypatch):
+    """A k's best stored without its check (here the check fails; a stop between a run and
+    its check does the same) gets it on the next run of the job, and the verdict with it."""
+    from mpi4py import MPI
+
+    from mscap.service import multistart
+    from mscap.scene import load_scene
+
+    scene = load_scene(scene_file)
+    out, lines = tmp_path / "pending.h5", []
+    real = multistart.estimate_error
+
+    def broken(*args, **kwargs):
+        raise MemoryError("the finer mesh does not fit (forced by the test)")
+    monkeypatch.setattr(multistart, "estimate_error", broken)
+    first = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1,
+                                      select_configs=lambda c: c.k == 2)
+    assert "resolution unknown" in first["choice"]
+    monkeypatch.setattr(multistart, "estimate_error", real)
+    second = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1,
+                                       select_configs=lambda c: c.k == 2, progress=lines.append)
+    assert second["runs_done"] == 1 and "resolution unknown" not in second["choice"]
+    best = second["choice"].split("(run ")[1].split(")")[0]
+    assert f"1 of them the finer-mesh check of {best}" in "\n".join(lines)
+    with read_store(out) as store:
+        assert read_run(store, best).checked
+    third = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1,
+                                      select_configs=lambda c: c.k == 2)
+    assert third["runs_done"] == 0  # nothing pending any more
+
+
+def test_a_stopping_job_keeps_a_finished_run_without_its_check(scene_file):
+    from types import SimpleNamespace
+
+    from mscap.service import farm, multistart
+    from mscap.scene import load_scene
+
+    record = SimpleNamespace(id="k2_s2000_lloyd", k=2, metric=1.0, bound_mm=float("nan"))
+
+    def stopping(question):
+        raise farm.Abandoned
+    assert multistart._with_check(load_scene(scene_file), record, None, None, None, stopping) is record
 
 
 def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_path, monkeypatch):
