@@ -21,9 +21,10 @@ master at its rungs whether it is still among the best of its k (or, with ``prun
 dominated one stops and is stored as pruned. A finished start asks the master once more,
 before its finer-mesh check: a run that a finished run of its k already beats can never
 be the best of its k, the only runs whose check the selection reads, so it is stored
-unchecked (``[multistart] check_all_runs = true`` checks every run; which runs are checked
-then depends on the order in which runs finish, their results do not). A start that
-raises is stored as failed
+unchecked (``[multistart] check_all_runs = true`` checks every run). Which runs are checked
+depends on the order in which runs finish; their results do not. A k's best stored
+unchecked (a stop between its run and its check, or a failed check) is checked when the
+job runs again. A start that raises is stored as failed
 with its error text; the others go on. While starts run, the master
 prints a status line of its busy workers after :data:`~mscap.service.heartbeat.HEARTBEAT_S`
 seconds without a progress line (:mod:`mscap.service.heartbeat`). SIGTERM (what SLURM sends

@@ -137,6 +137,23 @@ def pair_distances(outlines, shift_gap, shift_margin):
     return np.concatenate(out)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_barrier_value_equals_the_brute_force_sum_over_every_pair(seed):
+    """The pair search (a k-d tree per outline) finds every vertex–edge pair within d̂ of
+    its gap: the barrier equals the sum over all pairs of outlines and sheet, with finely
+    sampled outlines whose own neighbours are many (as after a cascade)."""
+    rng = np.random.default_rng(seed)
+    gap, margin = 1.0, 0.5
+    term = SeparationBarrier(SHEET, gap_mm=gap, margin_mm=margin)
+    centers = np.array([[-5.4, 0.0], [0.0, 0.0], [5.4, 0.0], [0.0, 16.8]]) + rng.uniform(-0.2, 0.2, (4, 2))
+    outlines = [geometry.disk(c, 4.0, 0.1) for c in centers]  # 2 mm radius, 0.1 mm edges
+    shifted = pair_distances(outlines, gap, margin)
+    assert shifted.min() > 0 and (shifted < term.dhat_mm).sum() > 100  # many pairs inside d̂
+    brute = barrier(shifted[shifted < term.dhat_mm], term.dhat_mm).sum()
+    value, _ = term.value_and_gradient(outlines)
+    assert value == pytest.approx(brute, rel=1e-12) and term.value(outlines) == pytest.approx(brute, rel=1e-12)
+
+
 @pytest.mark.parametrize("seed", range(12))
 def test_step_bound_never_reaches_contact(seed):
     rng = np.random.default_rng(seed)
