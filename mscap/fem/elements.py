@@ -197,13 +197,19 @@ def upper_stiffness(el: Element, rows: np.ndarray, tets: np.ndarray, coefficient
     return _tensor_stiffness(el, rows.T, tets, coefficient)[:, upper[0], upper[1]].T
 
 
-def _p1_upper_stiffness(rows: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
-    """:func:`upper_stiffness` for P1: ``c (c_a · c_b) / (6 det J)``, ``c_a = det J ∇λ_a``."""
-    corners = np.ascontiguousarray(tets.T)  # a contiguous index row per vertex: faster gathers
+def _row_cofactors(rows: np.ndarray, corners: np.ndarray) -> tuple[tuple, np.ndarray]:
+    """``c_a = det J ∇λ_a`` for a = 1, 2, 3 (the rows of ``det J · J⁻¹``: e1×e2, e2×e0,
+    e0×e1), each as three component rows, and ``det J``, from positions as component rows
+    ``(3, N)`` and the tets' vertices as index rows ``(4, M)`` (contiguous: faster gathers)."""
     p0 = rows[:, corners[0]]
     e0, e1, e2 = (rows[:, corners[a]] - p0 for a in (1, 2, 3))
     c1, c2, c3 = _cross(e1, e2), _cross(e2, e0), _cross(e0, e1)
-    det = e0[0] * c1[0] + e0[1] * c1[1] + e0[2] * c1[2]
+    return (c1, c2, c3), e0[0] * c1[0] + e0[1] * c1[1] + e0[2] * c1[2]
+
+
+def _p1_upper_stiffness(rows: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
+    """:func:`upper_stiffness` for P1: ``c (c_a · c_b) / (6 det J)``, ``c_a = det J ∇λ_a``."""
+    (c1, c2, c3), det = _row_cofactors(rows, np.ascontiguousarray(tets.T))
     c = (tuple(-(c1[i] + c2[i] + c3[i]) for i in range(3)), c1, c2, c3)
     scale = coefficient / (6.0 * det)
     out = np.empty((10, len(det)))
@@ -299,11 +305,9 @@ def _p1_energy_vjp(points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray
     rows = np.ascontiguousarray(np.asarray(points, dtype=float).T)
     phis = np.ascontiguousarray(fields.T)  # (m, n_dofs)
     for start in range(0, len(tets), BLOCK):
-        corners = np.ascontiguousarray(tets[start:start + BLOCK].T)  # contiguous index rows: faster gathers
-        p0 = rows[:, corners[0]]
-        e0, e1, e2 = (rows[:, corners[a]] - p0 for a in (1, 2, 3))
-        c = (None, _cross(e1, e2), _cross(e2, e0), _cross(e0, e1))  # c_0 = −(c_1 + c_2 + c_3) is not needed
-        det = e0[0] * c[1][0] + e0[1] * c[1][1] + e0[2] * c[1][2]
+        corners = np.ascontiguousarray(tets[start:start + BLOCK].T)
+        cofactors, det = _row_cofactors(rows, corners)
+        c = (None, *cofactors)  # c_0 = −(c_1 + c_2 + c_3) is not needed
         phi0 = phis[:, corners[0]]
         d = [None] + [phis[:, corners[a]] - phi0 for a in (1, 2, 3)]  # (m, B) each
         grad = []  # det J · g_i, (m, B) each
