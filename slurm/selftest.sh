@@ -232,7 +232,10 @@ before=$(stored "$res/resume.h5")
 second=$(submit_resume)
 wait_job "$second" 300
 [[ "$(state "$second")" == COMPLETED ]] || fail "resumed job $second: $(state "$second")"
-grep -q "$before runs already stored, $(( 4 - before )) to do" "$res/resume-$second.out" \
+# The rerun does the missing starts, plus the finer-mesh check of a k's best that the
+# cancel reached between its run and its check (stored unchecked, not lost).
+todo=$(sed -n "s/.*$before runs already stored, \([0-9]*\) to do.*/\1/p" "$res/resume-$second.out")
+[[ -n "$todo" ]] && (( todo >= 4 - before )) \
     || fail "job $second did not resume: $(grep 'to do' "$res/resume-$second.out")"
 [[ "$(stored "$res/resume.h5")" == 4 ]] || fail "after the resume $(stored "$res/resume.h5") runs, not 4"
 say "3. scancel + resubmit: job $first $(state "$first") with $before runs stored; job $second resumed the other $(( 4 - before ))"
