@@ -168,11 +168,11 @@ def main() -> None:
     print("| rule | cost | " + " | ".join(f"loss k = {k}" for k in ks) + " |")
     print("|---|---|" + "---|" * len(ks))
     for first, eta in ((0, 2),) + RULES:
-        for name, how in (("ASHA", replay), ("synchronous", replay_synchronous)):
+        asynchronous = lambda *a: replay(*a, lean_checks=args.lean_checks)  # noqa: E731
+        for name, how in (("ASHA", asynchronous), ("synchronous", replay_synchronous)):
             if first == 0 and how is replay_synchronous:
                 continue
-            cost, loss = how(runs, kind, PruneRule(first, eta), leave_out,
-                             **({"lean_checks": args.lean_checks} if how is replay else {}))
+            cost, loss = how(runs, kind, PruneRule(first, eta), leave_out)
             label = "none" if first == 0 else f"{name} {first}:{eta}"
             print(f"| {label} | {cost:.2f} | " + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks)
                   + " |")

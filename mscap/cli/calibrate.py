@@ -92,4 +92,3 @@ def run(args) -> int:
     print(text_report(scene, scores, noise))
     print(f"wrote {outdir}/errors.csv, summary.json, errors.png")
     return 0
-

@@ -146,9 +146,9 @@ class SeparationBarrier(Term):
                 found.append(np.c_[members[a][near["i"]], members[b][near["j"]]])
         i, j = np.concatenate(found).T
         gap = np.full(len(i), base)
-        if same_outline:
-            si, sj = cKDTree(x).query_pairs(longest + reach, output_type="ndarray").T
-            si, sj = si[owner[si] == owner[sj]], sj[owner[si] == owner[sj]]
+        if same_outline:  # the capacitors' own pairs (the sheet's own edges never enter)
+            si, sj = np.concatenate([members[o][trees[o].query_pairs(longest + reach, output_type="ndarray")]
+                                     for o in range(sheet)] + [np.empty((0, 2), dtype=np.intp)]).T
             i, j, gap = np.r_[i, si], np.r_[j, sj], np.r_[gap, np.full(len(si), longest)]
         if v is not None:
             apart = np.linalg.norm(x[i] - x[j], axis=1) - gap

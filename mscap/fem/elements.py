@@ -168,17 +168,21 @@ def stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np
     return _tensor_stiffness(el, points, tets, coefficient)
 
 
-def _tensor_stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray) -> np.ndarray:
-    """Any order: ``vol · A : S`` with the reference tensor ``S`` (module docstring)."""
+def _tensor_stiffness(el: Element, points: np.ndarray, tets: np.ndarray, coefficient: np.ndarray,
+                      entries: np.ndarray | None = None) -> np.ndarray:
+    """Any order: ``vol · A : S`` with the reference tensor ``S`` (module docstring), as
+    ``(M, nb, nb)`` matrices, or only the flat entries ``entries`` of each, ``(M, len(entries))``."""
     nb = el.n_basis
-    out = np.empty((len(tets), nb, nb))
     tensor = el.tensor.reshape(9, nb * nb)
+    if entries is not None:
+        tensor = tensor[:, entries]
+    out = np.empty((len(tets), tensor.shape[1]))
     for start in range(0, len(tets), BLOCK):
         block = slice(start, start + BLOCK)
         inv, vol = jacobians(points, tets[block])
         metric = (inv @ inv.transpose(0, 2, 1)).reshape(-1, 9)  # A = J⁻¹ J⁻ᵀ
-        out[block] = ((metric * (coefficient[block] * vol)[:, None]) @ tensor).reshape(-1, nb, nb)
-    return out
+        out[block] = (metric * (coefficient[block] * vol)[:, None]) @ tensor
+    return out if entries is not None else out.reshape(-1, nb, nb)
 
 
 @timed("assembly")
@@ -193,8 +197,8 @@ def upper_stiffness(el: Element, rows: np.ndarray, tets: np.ndarray, coefficient
     tets, docs/performance.md §2)."""
     if el.order == 1:
         return _p1_upper_stiffness(rows, tets, coefficient)
-    upper = np.triu_indices(el.n_basis)
-    return _tensor_stiffness(el, rows.T, tets, coefficient)[:, upper[0], upper[1]].T
+    upper = np.ravel_multi_index(np.triu_indices(el.n_basis), (el.n_basis,) * 2)
+    return _tensor_stiffness(el, rows.T, tets, coefficient, upper).T
 
 
 def _row_cofactors(rows: np.ndarray, corners: np.ndarray) -> tuple[tuple, np.ndarray]:

@@ -50,7 +50,7 @@ from mscap.service import farm
 from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
 from mscap.service.pruning import Envelope, PruneRule, Rungs, Verdict, history_values, prune_rule, score, \
     score_kind
-from mscap.service.selection import StartConfig, configurations, repeated_starts, select
+from mscap.service.selection import StartConfig, configurations, rank_key, repeated_starts, run_score, select
 from mscap.service.store import failed_record, finished_ids, open_store, read_run, record_from_result, \
     run_summaries, run_summary, write_run, write_selection
 
@@ -74,20 +74,15 @@ class Finished:
 
 def beaten_by(question: Finished, runs) -> str | None:
     """The id of a stored run of the same k that :func:`~mscap.service.selection.select`
-    ranks above ``question``'s run whatever else finishes (ok, not pruned; a smaller
-    read-back bound when the runs have one, else a larger min L1 distance; ties to the
-    smaller id), or ``None``: then the run may still be the best of its k and needs its
-    check."""
+    ranks above ``question``'s run whatever else finishes (ok, not pruned;
+    :func:`~mscap.service.selection.rank_key`: a smaller read-back bound when the runs have
+    one, else a larger min L1 distance; ties to the smaller id), or ``None``: then the run
+    may still be the best of its k and needs its check."""
     by_bound = math.isfinite(question.bound_mm) and question.bound_mm > 0
-
-    def score(metric: float, bound_mm: float) -> float:  # larger is better, as select() ranks
-        return (1.0 / bound_mm if bound_mm > 0 else math.nan) if by_bound else metric
-
-    mine = score(question.metric, question.bound_mm)
+    mine = rank_key(question, by_bound)
     better = [r for r in runs if r.k == question.k and r.ok and not r.pruned and r.id != question.id
-              and math.isfinite(r.metric) and math.isfinite(score(r.metric, r.bound_mm))
-              and (score(r.metric, r.bound_mm), question.id) > (mine, r.id)]
-    return None if not better else min(better, key=lambda r: (-score(r.metric, r.bound_mm), r.id)).id
+              and math.isfinite(run_score(r, by_bound)) and rank_key(r, by_bound) < mine]
+    return min(better, key=lambda r: rank_key(r, by_bound)).id if better else None
 
 
 def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: int | None = None,
@@ -319,10 +314,10 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
 
         def answer(progress: Progress | Finished) -> Verdict | str | None:
             if isinstance(progress, Finished):
-                beaten[progress.id] = beaten_by(progress, summaries.values())
-                if beaten[progress.id] is None:
-                    del beaten[progress.id]
-                return beaten.get(progress.id)
+                winner = beaten_by(progress, summaries.values())
+                if winner is not None:
+                    beaten[progress.id] = winner
+                return winner
             heartbeat.update(progress)
             return rungs.decide(progress.k, progress.iteration, progress.score) if progress.rung else None
 

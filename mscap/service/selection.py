@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
 __all__ = ["ERROR_BOUND", "StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS", "run_id", "configurations",
-           "repeated_starts", "choose_k", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
+           "repeated_starts", "choose_k", "run_score", "rank_key", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
 
 #: The ``init`` kinds the multi-start schedules, in order (:func:`configurations`: Lloyd
 #: starts first, then random ones); a subset of :data:`mscap.geometry.initial.LAYOUT_INITS`.
@@ -266,6 +266,20 @@ def choose_k(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) ->
     return None
 
 
+def run_score(run, by_bound: bool) -> float:
+    """What select() ranks a k's runs by, larger is better: the precision 1/bound (read-back
+    scenes) or the min L1 distance; NaN without one."""
+    if not by_bound:
+        return run.metric
+    return 1.0 / run.bound_mm if run.bound_mm > 0 else math.nan
+
+
+def rank_key(run, by_bound: bool) -> tuple[float, str]:
+    """select()'s order of a k's runs, best first: the larger :func:`run_score`, ties to the
+    smaller id."""
+    return -run_score(run, by_bound), run.id
+
+
 def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[int] = ()) -> Selection:
     """Best run per k (largest metric among the finished runs, pruned ones left out; ties go
     to the smallest id) and the chosen k.
@@ -282,12 +296,12 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
     # it never is the best of its k.
     good = [r for r in runs if r.ok and not r.pruned and math.isfinite(r.metric)]
     by_bound = bool(good) and all(math.isfinite(r.bound_mm) and r.bound_mm > 0 for r in good)
-    score = (lambda r: 1.0 / r.bound_mm) if by_bound else (lambda r: r.metric)
+    score = lambda r: run_score(r, by_bound)  # noqa: E731
     per_k = []
     for k in ks:
         mine = [r for r in runs if r.k == k]
         ok = [r for r in good if r.k == k]
-        best = min(ok, key=lambda r: (-score(r), r.id)) if ok else None
+        best = min(ok, key=lambda r: rank_key(r, by_bound)) if ok else None
         done = sum(r.ok for r in mine)
         per_k.append(KSummary(k=k, runs_ok=done, runs_failed=len(mine) - done,
                               best_metric=None if best is None else best.metric,
