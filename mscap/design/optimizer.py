@@ -16,8 +16,11 @@ After each accepted step the minimum 2D angle of both meshes is checked; below
 ``remesh_angle_deg`` or below half the freshly meshed minimum, whichever is smaller (gmsh
 itself makes 9° angles on the default poking mesh, so 10° alone would remesh at every
 step), the sheet is remeshed from the current
-outlines (:func:`mscap.design.remesh.remesh`), each pose's displacement is interpolated onto the new elastic
-mesh for the warm start, and the L-BFGS memory restarts. On convergence (relative J
+outlines (:func:`mscap.design.remesh.remesh`) and each pose's displacement is interpolated onto the new elastic
+mesh for the warm start. The L-BFGS memory is kept (``keep_memory_at_remesh``): the
+controls keep their number and order per outline and the design is the same, so the
+curvature pairs still describe J; restarting it cost the wrist 10 % of its bound
+(docs/optimize.md, "Remeshing keeps the L-BFGS memory"). On convergence (relative J
 change in a step or over the last ``stall_window`` steps on one mesh, or gradient norm,
 per level) the controls double (:meth:`Design.refined`) for ``cascade_levels`` more levels.
 """
@@ -150,9 +153,10 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
         release_freed_memory()
         e = design.evaluate(design.deformer.zeros(), warm=warm)
         g = _gradient(design, e)
-        memory.reset()
+        if not settings.keep_memory_at_remesh:
+            memory.reset()
+            step_length = settings.first_step_mm
         fresh = min_angle(design, e.q)
-        step_length = settings.first_step_mm
         record("remesh", evaluations=evaluations)  # the plateau window restarts: J on a new mesh differs by its error
 
     record("start")

@@ -253,7 +253,9 @@ class OptimizerSettings:
     steepest-descent steps start at ``first_step_mm`` (largest control displacement) and
     double while accepted whole; no step moves a control more than ``max_step_mm``.
     Remesh when a 2D angle drops below ``remesh_angle_deg`` (or below half the fresh
-    mesh's smallest angle, if that is less)."""
+    mesh's smallest angle, if that is less); ``keep_memory_at_remesh``: the L-BFGS
+    curvature pairs carry over to the new mesh (``false``: restart them, the behaviour
+    before 2026-12-04)."""
 
     distance: str = "pF"
     tau_pF2: float = 1.0
@@ -275,6 +277,7 @@ class OptimizerSettings:
     first_step_mm: float = 1.0
     max_step_mm: float = 2.0
     remesh_angle_deg: float = 10.0
+    keep_memory_at_remesh: bool = True
 
 
 @dataclass(frozen=True)
