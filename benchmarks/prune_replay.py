@@ -20,6 +20,7 @@ Example (seconds; the file from ``benchmarks/pruning.py``)::
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import sys
 from collections import Counter
@@ -167,8 +168,8 @@ def main() -> None:
             f"k = {k}: {100 * r.error_estimate:.1f} / {100 * r.metric_error:.1f} %" for k, r in best.items()))
     print("| rule | cost | " + " | ".join(f"loss k = {k}" for k in ks) + " |")
     print("|---|---|" + "---|" * len(ks))
+    asynchronous = functools.partial(replay, lean_checks=args.lean_checks)
     for first, eta in ((0, 2),) + RULES:
-        asynchronous = lambda *a: replay(*a, lean_checks=args.lean_checks)  # noqa: E731
         for name, how in (("ASHA", asynchronous), ("synchronous", replay_synchronous)):
             if first == 0 and how is replay_synchronous:
                 continue

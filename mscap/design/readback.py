@@ -265,6 +265,12 @@ class ReconstructionBound(Term):
     family: DesignFamily
     tau_mm: float = 0.25
 
+    @classmethod
+    def of(cls, scene: Scene) -> ReconstructionBound | None:
+        """The bound a design scene's runs are judged by (its design family, ``[optimizer]
+        tau_mm``), or ``None`` when it has no family (:func:`design_scene`)."""
+        return None if scene.design_family is None else cls(scene.design_family, scene.optimizer.tau_mm)
+
     def per_pose_mm(self, capacitance_pF: np.ndarray) -> np.ndarray:
         """r_g (mm) per grid point."""
         return self._forward(np.asarray(capacitance_pF, dtype=float))[0]

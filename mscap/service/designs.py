@@ -136,7 +136,7 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
 
     out = output_directory(directory, "optimize -o")
     final = result.layout
-    bound = None if scene.design_family is None else ReconstructionBound(scene.design_family, scene.optimizer.tau_mm)
+    bound = ReconstructionBound.of(scene)
     poses = [p.name for p in scene.poses]
     # Each file replaced, not written through: a link planted under its name is not followed.
     replace_text(out / "outlines.json", json.dumps(

@@ -124,8 +124,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
                                     time.perf_counter() - start, rank)
         if result.reason == "pruned":
             record = replace(record, status="pruned", reason=verdicts[-1].reason(rule))
-        bound = None if scene.design_family is None else ReconstructionBound(scene.design_family,
-                                                                             scene.optimizer.tau_mm)
+        bound = ReconstructionBound.of(scene)
         if bound is not None:
             record = replace(record, bound_mm=bound.value(record.final_capacitance_pF),
                              initial_bound_mm=bound.value(record.initial_capacitance_pF))
@@ -189,9 +188,8 @@ def run_check(scene: Scene, record, ask: Callable | None = None):
     from mscap.scene.sizing import with_layout
 
     start_scene = design_scene(with_layout(scene, initial_layout(scene, record.k, record.seed, record.init)))
-    bound = None if start_scene.design_family is None else ReconstructionBound(start_scene.design_family,
-                                                                               start_scene.optimizer.tau_mm)
-    return _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None, bound, ask)
+    return _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None,
+                       ReconstructionBound.of(start_scene), ask)
 
 
 def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,
