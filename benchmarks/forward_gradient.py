@@ -200,7 +200,7 @@ def plot(rows: list[dict], path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("scenes", nargs="*", default=SCENES, help=f"scene names (default: {' '.join(SCENES)})")
+    parser.add_argument("scenes", nargs="*", default=SCENES, help=f"scene names or scene files (default: {' '.join(SCENES)})")
     parser.add_argument("--quick", action="store_true", help="the *_quick scenes")
     parser.add_argument("--iterations", type=int, default=5, help="accepted optimiser steps to time (0: none)")
     parser.add_argument("--csv", help="output CSV (default docs/forward_gradient[_quick].csv)")
@@ -221,7 +221,7 @@ def main() -> None:
         return
     rows = []
     for name in args.scenes:
-        path = ROOT / "jobs" / f"{name}{'_quick' if args.quick else ''}.toml"
+        path = Path(name) if name.endswith(".toml") else ROOT / "jobs" / f"{name}{'_quick' if args.quick else ''}.toml"
         print(f"{path.name} ...", flush=True)
         result = run_child(path, args.iterations, "stages")
         if args.iterations:

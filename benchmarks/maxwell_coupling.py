@@ -63,7 +63,7 @@ def maxwell(scene, gap, settings):
                                   sheet_outline_mm=np.array([[-width / 2, -width / 2], [width / 2, -width / 2],
                                                              [width / 2, width / 2], [-width / 2, width / 2]]),
                                   )
-    problem = build_problem(mesh_scene(variant), scene.layers, settings.order)
+    problem = build_problem(mesh_scene(variant), scene.layers, settings.order, settings.element)
     return solve(problem, maxwell=True).maxwell_pF, problem.n_dofs
 
 

@@ -4,7 +4,7 @@ The default mesh overestimates each plate's fringe by an amount per millimetre o
 edge, so its relative error grows as plates shrink. This script measures that error per
 unit of edge for a ladder of mesh settings ("rungs") on single plates of several sizes and
 shapes, against converged references, and prints the constants that
-``mscap.scene.sizing.LADDER`` pins.
+``mscap.scene.sizing.LADDER`` and ``TET_LADDER`` pin.
 
 Plates: squares of 6, 10 and 20 mm and a 10 mm disk (a fixed 128-gon, so every mesh sees
 the same polygon), each centred on a sheet with a 10 mm margin, in the stack of
@@ -15,7 +15,7 @@ Reference per plate: P2, the outline edge and the elements per layer refined tog
 (outline 0.4, 0.2, 0.1 mm with 1, 2, 4 elements per layer; far edge 2 mm, grading 3 mm)
 and Richardson-extrapolated from the three levels with the observed order.
 
-Rungs (``mscap.scene.sizing.LADDER``): order, outline edge as a multiple of the dielectric
+Rungs (``mscap.scene.sizing.LADDER``, ``TET_LADDER``): order, element, outline edge as a multiple of the dielectric
 gap d, elements per layer, and the slope (mm per mm) at which the edge length grows within
 4 stack thicknesses of the outlines (the fringe zone); beyond it, at 2 up to 5 mm.
 Error per unit edge: e = (C − C*) / P, reported as e / ε (dimensionless: the fringe
@@ -56,7 +56,7 @@ from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.geometry.layout import Layout  # noqa: E402
 from mscap.geometry.polygons import disk, square  # noqa: E402
 from mscap.mesh.layered import mesh_scene  # noqa: E402
-from mscap.scene.sizing import FRINGE_STACKS, LADDER, STEEP, Rung, rung_settings  # noqa: E402
+from mscap.scene.sizing import FRINGE_STACKS, LADDER, STEEP, TET_LADDER, Rung, rung_settings  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.scene.settings import MeshSettings  # noqa: E402
 
@@ -67,7 +67,9 @@ REFERENCE_LEVELS = [(0.4, 1), (0.2, 2), (0.1, 4)]
 #: Settings measured besides the ladder: P1 with two elements per layer (the ladder leaves
 #: it out: P2 is as accurate for fewer unknowns) and the hand-set paper default.
 EXTRA = [(Rung(1, 0.5, 2, 0.5, float("nan")), None), ("hand default", MeshSettings(5.0, 0.075, 2.5, 1, 1))]
-FIELDS = ["plate", "rung", "order", "edge_length_outline_mm", "edge_length_mm", "grading_distance_mm",
+#: P1 prisms (``[mesh] element = "prism"``, mscap.fem.wedge) on the tets' rungs and coarser.
+PRISMS = [Rung(1, h, 1, slope, float("nan"), "prism") for h in (3.0, 2.0, 1.5, 1.0, 0.5) for slope in (1.0, 0.5)]
+FIELDS = ["plate", "rung", "order", "element", "edge_length_outline_mm", "edge_length_mm", "grading_distance_mm",
           "elements_per_layer", "dofs", "electrostatics_s", "capacitance_pF", "reference_pF", "error",
           "e_over_eps"]
 
@@ -78,7 +80,7 @@ def capacitance(scene, plate, settings):
                                   sheet_outline_mm=square(plate.mean(axis=0), extent + 2 * MARGIN_MM))
     mesh = mesh_scene(variant)
     start = time.perf_counter()
-    problem = build_problem(mesh, scene.layers, settings.order)
+    problem = build_problem(mesh, scene.layers, settings.order, settings.element)
     c = float(solve(problem).capacitance_pF[0])
     return c, problem.n_dofs, time.perf_counter() - start
 
@@ -94,6 +96,7 @@ def main(argv=None):
     parser.add_argument("--scene", default=str(ROOT / "jobs" / "poking.toml"), help="the stack to use")
     parser.add_argument("--plates", nargs="*", default=list(PLATES), help=f"some of {list(PLATES)}")
     parser.add_argument("--out", default=str(ROOT / "docs" / "plate_size.csv"))
+    parser.add_argument("--only-prisms", action="store_true", help="only the prism rungs (PRISMS)")
     parser.add_argument("--references", metavar="CSV",
                         help="take each plate's reference from an earlier run's CSV instead of recomputing it")
     args = parser.parse_args(argv)
@@ -102,9 +105,14 @@ def main(argv=None):
     gap = scene.layers[2]
     eps = gap.material.permittivity_pF_per_mm
     stack = sum(layer.thickness_mm for layer in scene.layers)
-    rungs = [(r.label, rung_settings(r, gap.thickness_mm, stack)) for r in LADDER]
+    pinned_rungs = TET_LADDER + LADDER
+    rungs = [(r.label, rung_settings(r, gap.thickness_mm, stack)) for r in pinned_rungs]
     rungs += [(r.label, rung_settings(r, gap.thickness_mm, stack)) if isinstance(r, Rung) else (r, settings)
               for r, settings in EXTRA]
+    rungs += [(r.label, rung_settings(r, gap.thickness_mm, stack)) for r in PRISMS
+              if r.label not in {p.label for p in pinned_rungs}]
+    if args.only_prisms:
+        rungs = [(label, settings) for label, settings in rungs if settings.element == "prism"]
     known = {}
     if args.references:
         with open(args.references) as f:
@@ -120,7 +128,7 @@ def main(argv=None):
         for label, settings in rungs:
             c, dofs, seconds = capacitance(scene, plate, settings)
             error = (c - c_ref) / c_ref
-            rows.append(dict(plate=name, rung=label, order=settings.order,
+            rows.append(dict(plate=name, rung=label, order=settings.order, element=settings.element,
                              edge_length_outline_mm=settings.edge_length_outline_mm,
                              edge_length_mm=settings.edge_length_mm,
                              grading_distance_mm=settings.grading_distance_mm,
@@ -134,7 +142,7 @@ def main(argv=None):
     print("\n".join(table_head("| rung | " + " | ".join(args.plates) + " | max e/ε | ladder's e/ε |")))
     for label, _ in rungs:
         sel = [r for r in rows if r["rung"] == label]
-        pinned = next((f"{r.e_over_eps:g}" for r in LADDER if label == r.label), "")
+        pinned = next((f"{r.e_over_eps:g}" for r in TET_LADDER + LADDER if label == r.label), "")
         cells = [f"{100 * r['error']:+.2f} % ({r['dofs']:,})" for r in sel]
         print(f"| {label} | " + " | ".join(cells) + f" | {max(r['e_over_eps'] for r in sel):.3f} | {pinned} |")
     print(f"\nfringe zone {FRINGE_STACKS:g} stack thicknesses, then slope {STEEP:g}; wrote {args.out}")

@@ -111,7 +111,21 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
     """Minimise J from ``q0`` (default 0) of ``design``; settings from the scene's
     ``[optimizer]`` (``max_iterations`` per level, ``cascade_levels`` refinements).
     After every accepted step ``checkpoint(its history record)`` may return ``False`` to
-    stop here (reason ``"pruned"``, :mod:`mscap.service.pruning`)."""
+    stop here (reason ``"pruned"``, :mod:`mscap.service.pruning`).
+
+    An exception leaves with the history up to it as its ``history`` attribute (a tuple
+    of records), so that a failed start keeps what it did (:func:`mscap.service.schema.failed_record`)."""
+    history: list[Record] = []
+    try:
+        return _optimize(design, q0, progress, max_iterations, cascade_levels, checkpoint, history)
+    except Exception as exc:
+        exc.history = tuple(history)
+        raise
+
+
+def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, checkpoint,
+              history: list[Record]) -> OptimizeResult:
+    """:func:`optimize`, appending to ``history`` as it goes."""
     say = progress or (lambda message: None)
     settings = design.scene.optimizer
     max_iterations = settings.max_iterations if max_iterations is None else max_iterations
@@ -122,7 +136,6 @@ def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = N
     g = _gradient(design, e)
     initial = e.detached()
     memory = _LBFGS()
-    history: list[Record] = []
     level, iteration, level_iterations, reason = 0, 0, 0, ""
     level_gradient = float(np.linalg.norm(g))
     fresh = min_angle(design, q)

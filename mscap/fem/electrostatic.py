@@ -30,9 +30,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from mscap.fem import elements as fem
+from mscap.fem import wedge
 from mscap.errors import ElectrostaticError, InvertedMeshError
-from mscap.mesh.layered import (BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE_LAYER, LayeredMesh, tet_values,
-                                 tet_volumes)
+from mscap.mesh.layered import (BOTTOM_PLATE_LAYER, CONDUCTIVE_LAYERS, TOP_PLATE_LAYER, LayeredMesh, prisms_of,
+                                 tet_values, tet_volumes)
 from mscap.fem.petsc import LinearSolver, petsc
 
 __all__ = ["ElectrostaticError", "InvertedMeshError", "ElectrostaticProblem", "Capacitances", "build_problem",
@@ -46,6 +47,9 @@ log = logging.getLogger(__name__)
 RESIDUAL_LIMIT = 1e-3
 #: Above this, warn: capacitances err by ~residual², shape derivatives by ~residual.
 RESIDUAL_WARNING = 1e-8
+#: The element shapes of ``[mesh] element``: the three tets of each prism, or the prism
+#: itself (P1 only, :mod:`mscap.fem.wedge`).
+SHAPES = ("tet", "prism")
 
 
 @dataclass(frozen=True)
@@ -58,9 +62,10 @@ class ElectrostaticProblem:
         The layered mesh.
     order
         Element order (1 or 2).
-    tets, dofs, permittivity
-        Vertices ``(M, 4)``, dofs ``(M, nb)`` and ε (pF/mm) ``(M,)`` of the dielectric
-        tets, the only ones assembled (a conductor tet carries no field).
+    cells, dofs, permittivity
+        Vertices ``(M, 4)`` (tets) or ``(M, 6)`` (prisms), dofs ``(M, nb)`` and ε (pF/mm)
+        ``(M,)`` of the dielectric cells, the only ones assembled (a conductor carries no
+        field).
     n_dofs
         Number of dofs of the whole mesh (P2: vertices first, then edges).
     plate_of_dof
@@ -79,11 +84,13 @@ class ElectrostaticProblem:
     fd_entries, fd_target
         CSR data positions of the free-row, Dirichlet-column entries and their flat
         index ``free_row · 2k + plate`` in the coupling matrix ``K_fd P``.
+    shape
+        ``"tet"`` or ``"prism"`` (:data:`SHAPES`).
     """
 
     mesh: LayeredMesh
     order: int
-    tets: np.ndarray
+    cells: np.ndarray
     dofs: np.ndarray
     permittivity: np.ndarray
     n_dofs: int
@@ -99,6 +106,7 @@ class ElectrostaticProblem:
     ff_indices: np.ndarray
     fd_entries: np.ndarray
     fd_target: np.ndarray
+    shape: str = "tet"
 
     def __post_init__(self):
         for name, value in vars(self).items():
@@ -184,8 +192,9 @@ def _plates(mesh: LayeredMesh) -> np.ndarray:
     return plate
 
 
-def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> ElectrostaticProblem:
-    """Dofs, Dirichlet split and sparsity pattern of ``mesh`` (once per mesh).
+def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1, shape: str = "tet") -> ElectrostaticProblem:
+    """Dofs, Dirichlet split and sparsity pattern of ``mesh`` (once per mesh), on its tets
+    or (``shape="prism"``, P1) on the prisms they were cut from.
 
     Raises
     ------
@@ -194,6 +203,10 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Electr
     """
     if order not in (1, 2):
         raise ElectrostaticError(f"element order must be 1 or 2, got {order!r}")
+    if shape not in SHAPES:
+        raise ElectrostaticError(f"element shape must be one of {SHAPES}, got {shape!r}")
+    if shape == "prism" and order != 1:
+        raise ElectrostaticError(f"prisms are P1 only; got order {order}")
     start = time.perf_counter()
     k = mesh.n_capacitors
     plate_of_tet = _plates(mesh)
@@ -204,9 +217,14 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Electr
     # int32 indices where they fit (all but astronomically large meshes): 60 MB less on
     # a 1.46 M tet finer-mesh check.
     dof_type = fem.index_type(n_dofs * 2 * k)  # fd_target below reaches n_free · 2k
-    tets = mesh.tets[~conductor].astype(dof_type)
-    dofs = tets if order == 1 else all_dofs[~conductor].astype(dof_type)  # P1: the dofs are the vertices
-    eps = permittivity_of_tets(mesh, layers)[~conductor]
+    eps = permittivity_of_tets(mesh, layers)
+    if shape == "tet":
+        cells = mesh.tets[~conductor].astype(dof_type)
+        eps = eps[~conductor]
+    else:  # a prism's three tets share its triangle and slab, so its plate and its ε
+        cells = prisms_of(mesh)[~conductor[::3]].astype(dof_type)
+        eps = eps[::3][~conductor[::3]]
+    dofs = cells if order == 1 else all_dofs[~conductor].astype(dof_type)  # P1: the dofs are the vertices
     indptr, indices, upper_to_csr, above, below = _csr_pattern(dofs, n_dofs)
     entry_type, indices = indptr.dtype, indices.astype(dof_type, copy=False)
     csr_row = np.repeat(np.arange(n_dofs, dtype=dof_type), np.diff(indptr))
@@ -222,12 +240,12 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1) -> Electr
     del csr_row, row_free, col_free
 
     problem = ElectrostaticProblem(
-        mesh=mesh, order=order, tets=tets, dofs=dofs, permittivity=eps, n_dofs=n_dofs,
+        mesh=mesh, order=order, cells=cells, dofs=dofs, permittivity=eps, n_dofs=n_dofs,
         plate_of_dof=plate_of_dof, free=free, indptr=indptr, indices=indices,
         upper_to_csr=upper_to_csr, above=above, below=below, ff_entries=ff_entries, ff_indptr=ff_indptr,
-        ff_indices=free_index[indices[ff_entries]], fd_entries=fd_entries, fd_target=fd_target)
-    log.info("electrostatic P%d problem: %d dofs (%d free), %d nonzeros, %d dielectric tets (%.2f s)",
-             order, n_dofs, len(free), len(indices), len(tets), time.perf_counter() - start)
+        ff_indices=free_index[indices[ff_entries]], fd_entries=fd_entries, fd_target=fd_target, shape=shape)
+    log.info("electrostatic P%d problem: %d dofs (%d free), %d nonzeros, %d dielectric %ss (%.2f s)",
+             order, n_dofs, len(free), len(indices), len(cells), shape, time.perf_counter() - start)
     return problem
 
 
@@ -329,13 +347,17 @@ def assemble(problem: ElectrostaticProblem, x: np.ndarray | None = None) -> np.n
     data = np.zeros(len(problem.indices))
     # BLOCK tets at a time: the element matrices of all tets at once were the largest
     # temporary of an evaluation (M nb² doubles, 145 MB on the glove's finer mesh).
-    for start in range(0, len(problem.tets), fem.BLOCK):
+    for start in range(0, len(problem.cells), fem.BLOCK):
         block = slice(start, start + fem.BLOCK)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # degenerate tets: reported below
-            upper = fem.upper_stiffness(problem.element, rows, problem.tets[block], problem.permittivity[block])
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # degenerate cells: reported below
+            if problem.shape == "prism":
+                upper = wedge.upper_stiffness(rows, problem.cells[block], problem.permittivity[block])
+            else:
+                upper = fem.upper_stiffness(problem.element, rows, problem.cells[block], problem.permittivity[block])
         # A vertex's diagonal entry ε vol ∫|∇N_0|² has the sign of the volume (ε > 0): a
         # non-positive or non-finite one marks an inverted or degenerate tet, without a
-        # second pass over all tets for their volumes (a third of the assembly's time).
+        # second pass over all tets for their volumes (a third of the assembly's time); a
+        # prism's is NaN when its Jacobian is not positive at every point (wedge.py).
         corner = upper[0]
         bad = np.flatnonzero(~(np.isfinite(corner) & (corner > 0)))
         if len(bad):
@@ -351,14 +373,16 @@ def assemble(problem: ElectrostaticProblem, x: np.ndarray | None = None) -> np.n
 
 
 def _raise_inverted(problem: ElectrostaticProblem, x: np.ndarray, bad: np.ndarray) -> None:
-    """Raise for the inverted or degenerate dielectric tets ``bad`` (all of them counted)."""
+    """Raise for the inverted or degenerate dielectric cells ``bad`` (all of them counted)."""
+    measure = wedge.min_jacobian if problem.shape == "prism" else tet_volumes
+    what = "smallest Jacobian" if problem.shape == "prism" else "volume"
     count = len(bad)
-    for start in range(int(bad[-1]) + 1, len(problem.tets), fem.BLOCK):
-        vol = tet_volumes(x, problem.tets[start:start + fem.BLOCK])
+    for start in range(int(bad[-1]) + 1, len(problem.cells), fem.BLOCK):
+        vol = measure(x, problem.cells[start:start + fem.BLOCK])
         count += int((~(np.isfinite(vol) & (vol > 0))).sum())
-    vol = tet_volumes(x, problem.tets[bad[:1]])[0]
-    raise InvertedMeshError(f"{count} dielectric tets are inverted or degenerate at the given "
-                            f"positions (e.g. tet {int(bad[0])}, volume {vol:.3g} mm³)")
+    vol = measure(x, problem.cells[bad[:1]])[0]
+    raise InvertedMeshError(f"{count} dielectric {problem.shape}s are inverted or degenerate at the given "
+                            f"positions (e.g. {problem.shape} {int(bad[0])}, {what} {vol:.3g} mm³)")
 
 
 def solve(problem: ElectrostaticProblem, x: np.ndarray | None = None, maxwell: bool = False,
@@ -467,9 +491,14 @@ def capacitance_vjp(problem: ElectrostaticProblem, caps: Capacitances, weights,
     if weights.shape != (problem.k,):
         raise ElectrostaticError(f"expected {problem.k} weights, got {weights.shape[0]}")
     used = np.flatnonzero(weights)
-    fields = caps.top_potentials[:, used]
-    return fem.energy_vjp(problem.element, x, problem.tets, problem.dofs, problem.permittivity,
-                          fields, np.diag(weights[used]))
+    return _energy_vjp(problem, x, caps.top_potentials[:, used], np.diag(weights[used]))
+
+
+def _energy_vjp(problem: ElectrostaticProblem, x: np.ndarray, fields: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``Σ_ab W_ab d(φ_aᵀ K(x) φ_b)/dx`` at fixed ``fields``, on the problem's cells."""
+    if problem.shape == "prism":
+        return wedge.energy_vjp(x, problem.cells, problem.permittivity, fields, weights)
+    return fem.energy_vjp(problem.element, x, problem.cells, problem.dofs, problem.permittivity, fields, weights)
 
 
 def capacitance_jacobian(problem: ElectrostaticProblem, caps: Capacitances,
@@ -487,5 +516,4 @@ def maxwell_vjp(problem: ElectrostaticProblem, caps: Capacitances, weights,
     weights = np.asarray(weights, dtype=float)
     if weights.shape != (2 * problem.k,) * 2:
         raise ElectrostaticError(f"expected ({2 * problem.k}, {2 * problem.k}) weights, got {weights.shape}")
-    return fem.energy_vjp(problem.element, x, problem.tets, problem.dofs, problem.permittivity,
-                          caps.potentials, weights)
+    return _energy_vjp(problem, x, caps.potentials, weights)

@@ -11,7 +11,7 @@ import numpy as np
 
 from mscap.fem import electrostatic
 from mscap.fem.petsc import LinearSolver
-from mscap.fem.simulate import Simulation
+from mscap.fem.simulate import Simulation, element_of
 from mscap.mesh.layered import LayeredMesh, mesh_scene
 
 if TYPE_CHECKING:
@@ -84,7 +84,7 @@ def rest_capacitance(scene: Scene, order: int | None = None, maxwell: bool = Fal
     start = time.perf_counter()
     mesh = mesh_scene(scene)
     meshed = time.perf_counter()
-    problem = electrostatic.build_problem(mesh, scene.layers, order)
+    problem = electrostatic.build_problem(mesh, scene.layers, *element_of(scene, order))
     prepared = time.perf_counter()
     solver = LinearSolver("electro_")
     try:

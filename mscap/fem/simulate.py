@@ -26,7 +26,7 @@ from mscap.mesh.layered import LayeredMesh, extrude_scene, mesh_elastic, mesh_sc
 from mscap.mesh.transfer import interpolation_matrix
 
 __all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibria", "capacitances", "equilibrium",
-           "elastic_setup", "elastic_transfer", "electro_vertices", "release_freed_memory"]
+           "elastic_setup", "elastic_transfer", "electro_vertices", "release_freed_memory", "element_of"]
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -147,7 +147,7 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     try:
         mesh = mesh if mesh2d is None else extrude_scene(scene, mesh2d)
         sim = replace(sim, mesh=mesh, transfer=elastic_transfer(problem, mesh),
-                      electro=electrostatic.build_problem(mesh, scene.layers, order or scene.mesh.order))
+                      electro=electrostatic.build_problem(mesh, scene.layers, *element_of(scene, order)))
     except BaseException:
         _free(states)
         raise
@@ -262,6 +262,13 @@ def _free(states) -> None:
     for state in states:
         if state is not None and state.operator is not None:
             state.operator.destroy()
+
+
+def element_of(scene: Scene, order: int | None = None) -> tuple[int, str]:
+    """The electrostatic element order and shape for ``scene`` (``order`` overriding its
+    ``[mesh] order``): its ``[mesh] element``, except that P2 is tets only."""
+    order = order or scene.mesh.order
+    return order, scene.mesh.element if order == 1 else "tet"
 
 
 def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None, transfer: bool = True):

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LayeredMesh", "extrude", "mesh_scene", "mesh_elastic", "elastic_layout", "level_heights", "layer_fractions",
+__all__ = ["LayeredMesh", "extrude", "prisms_of", "mesh_scene", "mesh_elastic", "elastic_layout", "level_heights", "layer_fractions",
            "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
 
 #: Layer indices (bottom to top) of the two conductive layers.
@@ -203,6 +203,24 @@ def extrude(mesh2d: TriMesh, thicknesses_mm, elements_per_layer: int = 1,
     capacitor_of_tet = mesh2d.capacitor_of_triangle.astype(np.int32)[triangle_of_tet]
     capacitor_of_tet[~np.isin(layer_of_tet, CONDUCTIVE_LAYERS)] = -1
     return LayeredMesh(mesh2d, z, points, tets, layer_of_tet, capacitor_of_tet, triangle_of_tet)
+
+
+def prisms_of(mesh: LayeredMesh) -> np.ndarray:
+    """``(M / 3, 6)`` the prisms ``mesh``'s tets were cut from, in the tets' order (prism
+    ``p`` is tets ``3p .. 3p + 2``): bottom triangle then the vertices above it, turned so
+    that the bottom runs counter-clockwise (a positive Jacobian at rest,
+    :mod:`mscap.fem.wedge`)."""
+    n2, n_slabs = len(mesh.mesh2d.points), len(mesh.level_z_mm) - 1
+    tri = np.sort(mesh.mesh2d.triangles, axis=1)
+    xy = mesh.mesh2d.points
+    e1, e2 = xy[tri[:, 1]] - xy[tri[:, 0]], xy[tri[:, 2]] - xy[tri[:, 0]]
+    clockwise = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    tri[clockwise] = tri[clockwise][:, [0, 2, 1]]
+    slab = np.arange(n_slabs)[:, None, None]
+    prisms = np.concatenate([tri[None] + slab * n2, tri[None] + (slab + 1) * n2], axis=2).reshape(-1, 6)
+    if 3 * len(prisms) != len(mesh.tets):
+        raise ValueError(f"the mesh has {len(mesh.tets)} tets, not 3 per prism of its {len(prisms)} prisms")
+    return prisms
 
 
 @timed("meshing")

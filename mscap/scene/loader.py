@@ -245,17 +245,22 @@ def _read_mesh(t: Table, layers: tuple[Layer, ...], sheet: np.ndarray) -> MeshSe
     order = t.get("order", int, 1)
     if order not in (1, 2):
         raise t.error("order", f"must be 1 or 2, got {order!r}")
+    element = t.get("element", str, "tet")
+    if element not in ("tet", "prism"):
+        raise t.error("element", f"must be \"tet\" or \"prism\", got {element!r}")
+    if element == "prism" and order != 1:
+        raise t.error("element", f"prisms are P1 only; this [mesh] asks for order = {order}")
     signal = t.get("signal_tolerance", float, None, positive=True)
     if signal is not None and not signal < 1:
         raise t.error("signal_tolerance", f"a relative error of the pose-to-pose gains, must be < 1, got {signal!r}")
     t.finish()
-    return MeshSettings(far, near, grading, per_layer, order, tolerance, signal_tolerance=signal)
+    return MeshSettings(far, near, grading, per_layer, order, tolerance, signal_tolerance=signal, element=element)
 
 
 def _size_mesh(t: Table, given: MeshSettings, layers: tuple[Layer, ...], layout: Layout) -> MeshSettings:
     """The ladder's cheapest settings for the tolerance on the layout's plates; keys the
     scene gives win over the ladder's."""
-    keys = SIZE_KEYS + ("elements_per_layer", "order")
+    keys = SIZE_KEYS + ("elements_per_layer", "order", "element")
     mesh, worst = sizing.sized(replace(given, overrides=tuple((key, getattr(given, key)) for key in keys if t.has(key))),
                                layers, layout)
     if mesh.edge_length_outline_mm > mesh.edge_length_mm:

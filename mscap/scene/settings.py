@@ -182,6 +182,10 @@ class MeshSettings:
     #: signal_tolerance``); on a poked scene it chooses the elastic order and edge
     #: (:func:`mscap.scene.sizing.elastic_for_signal`). None: the elastic settings as given.
     signal_tolerance: float | None = None
+    #: The electrostatic element: ``"tet"`` (three per prism of the extruded mesh, P1 or
+    #: P2) or ``"prism"`` (the prism itself, P1: about 3× less error on the same
+    #: vertices, :mod:`mscap.fem.wedge`).
+    element: str = "tet"
 
 
 @dataclass(frozen=True)

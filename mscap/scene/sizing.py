@@ -85,17 +85,20 @@ class Rung:
     elements_per_layer: int
     slope: float
     e_over_eps: float
+    element: str = "tet"
 
     @property
     def label(self) -> str:
-        return f"P{self.order} h {self.outline_over_gap:g}d x{self.elements_per_layer} slope {self.slope:g}"
+        shape = " prism" if self.element == "prism" else ""
+        return f"P{self.order}{shape} h {self.outline_over_gap:g}d x{self.elements_per_layer} slope {self.slope:g}"
 
 
-#: From the cheapest to the most accurate (by unknowns on the 20 mm square, 13k to 600k);
-#: e/ε is the largest over the four calibration plates, rounded up
-#: (``.venv/bin/python benchmarks/plate_size.py``, docs/plate_size.csv). P1 with 2 elements
-#: per layer (0.14 at 79k unknowns) is left out: P2 at 2d, slope 1 matches it at 52k.
-LADDER: tuple[Rung, ...] = (
+#: Tets only (a scene that gives ``element = "tet"``, or ``order = 2``), from the cheapest
+#: to the most accurate (by unknowns on the 20 mm square, 13k to 600k); e/ε is the largest
+#: over the four calibration plates, rounded up (``.venv/bin/python
+#: benchmarks/plate_size.py``, docs/plate_size.csv). P1 with 2 elements per layer (0.14 at
+#: 79k unknowns) is left out: P2 at 2d, slope 1 matches it at 52k.
+TET_LADDER: tuple[Rung, ...] = (
     Rung(1, 1.0, 1, 1.0, 0.44),
     Rung(1, 1.0, 1, 0.5, 0.36),
     Rung(1, 0.5, 1, 1.0, 0.30),
@@ -107,12 +110,30 @@ LADDER: tuple[Rung, ...] = (
     Rung(2, 0.5, 2, 0.5, 0.017),
 )
 
+#: The default ladder: P1 prisms (``[mesh] element = "prism"``, :mod:`mscap.fem.wedge`),
+#: then the two most accurate P2 tet rungs. On the same vertices a prism errs about a third
+#: of its three tets, so every P1 tet rung and the P2 ones down to e/ε = 0.08 have a prism
+#: rung as accurate with 2.5–4.6× fewer unknowns (``benchmarks/plate_size.py
+#: --only-prisms``, 2026-12-04: 4.5k–43k unknowns on the 20 mm square; docs/performance.md
+#: §14). Prism rungs of slope 0.5 that a slope-1 rung beats at fewer unknowns are left out.
+LADDER: tuple[Rung, ...] = (
+    Rung(1, 3.0, 1, 1.0, 0.69, "prism"),
+    Rung(1, 2.0, 1, 1.0, 0.38, "prism"),
+    Rung(1, 1.5, 1, 1.0, 0.26, "prism"),
+    Rung(1, 1.0, 1, 1.0, 0.17, "prism"),
+    Rung(1, 1.0, 1, 0.5, 0.13, "prism"),
+    Rung(1, 0.5, 1, 1.0, 0.09, "prism"),
+    Rung(1, 0.5, 1, 0.5, 0.07, "prism"),
+    Rung(2, 1.0, 1, 0.5, 0.05),
+    Rung(2, 0.5, 2, 0.5, 0.017),
+)
+
 
 def rung_settings(rung: Rung, gap_mm: float, stack_mm: float, far_mm: float = FAR_EDGE_MM) -> MeshSettings:
     """The mesh settings of ``rung`` for a dielectric gap of ``gap_mm`` in a stack ``stack_mm`` thick."""
     near = min(rung.outline_over_gap * gap_mm, far_mm)
     return MeshSettings(far_mm, near, max((far_mm - near) / STEEP, near), rung.elements_per_layer, rung.order,
-                        fringe_distance_mm=FRINGE_STACKS * stack_mm, fringe_slope=rung.slope)
+                        fringe_distance_mm=FRINGE_STACKS * stack_mm, fringe_slope=rung.slope, element=rung.element)
 
 
 def predicted_errors(rung: Rung, outlines: Sequence[np.ndarray], gap_mm: float) -> np.ndarray:
@@ -124,16 +145,18 @@ def predicted_errors(rung: Rung, outlines: Sequence[np.ndarray], gap_mm: float) 
 
 def settings_for_tolerance(tolerance: float, outlines: Sequence[np.ndarray], gap_mm: float, stack_mm: float,
                            far_mm: float = FAR_EDGE_MM, order: int | None = None,
-                           elements_per_layer: int | None = None) -> tuple[MeshSettings, Rung, float]:
+                           elements_per_layer: int | None = None,
+                           element: str | None = None) -> tuple[MeshSettings, Rung, float]:
     """The cheapest rung whose predicted error is within ``tolerance`` on every plate,
-    among the rungs of ``order`` and ``elements_per_layer`` when given (a scene that fixes
-    them).
+    among the rungs of ``order``, ``elements_per_layer`` and ``element`` when given (a
+    scene that fixes them): :data:`LADDER`, or :data:`TET_LADDER` for tets or P2.
 
     Returns its settings, the rung and the largest predicted error. When no rung reaches
     the tolerance (plates much smaller than a few millimetres), the most accurate rung,
     with a warning naming the predicted error."""
-    ladder = [rung for rung in LADDER if order in (None, rung.order)
-              and elements_per_layer in (None, rung.elements_per_layer)] or list(LADDER)
+    pool = TET_LADDER if element == "tet" or order == 2 else LADDER
+    ladder = [rung for rung in pool if order in (None, rung.order) and element in (None, rung.element)
+              and elements_per_layer in (None, rung.elements_per_layer)] or list(pool)
     for rung in ladder:
         worst = float(predicted_errors(rung, outlines, gap_mm).max())
         if worst <= tolerance:
@@ -154,7 +177,7 @@ def sized(mesh: MeshSettings, layers: Sequence[Layer], layout: Layout) -> tuple[
     far = min(FAR_EDGE_MM, mesh.curvature_edge_mm or np.inf)  # a glued bend's curvature caps it
     settings, _, worst = settings_for_tolerance(mesh.tolerance, layout.outlines, layers[2].thickness_mm, stack,
                                                 given.get("edge_length_mm", far), given.get("order"),
-                                                given.get("elements_per_layer"))
+                                                given.get("elements_per_layer"), given.get("element"))
     settings = replace(settings, tolerance=mesh.tolerance, overrides=mesh.overrides, **given)
     return replace(settings, zones=no_finer_than(mesh.zones, settings.edge_length_outline_mm),
                    curvature_edge_mm=mesh.curvature_edge_mm, signal_tolerance=mesh.signal_tolerance), worst

@@ -101,6 +101,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
 
     release_freed_memory()  # what the previous start on this worker freed
     start = time.perf_counter()
+    layout = None
     try:
         layout = initial_layout(scene, config.k, config.seed, config.init)
         design = build_design(with_layout(scene, layout))  # sized for its plates
@@ -136,7 +137,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     except Exception as exc:  # a failed start is a result, not a crash of the job
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
         return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
-                             time.perf_counter() - start, rank)
+                             time.perf_counter() - start, rank, layout, getattr(exc, "history", ()))
     if not scene.multistart.error_estimate or record.pruned:
         return record
     return _with_check(scene, record, final, equilibria, bound, ask)

@@ -15,7 +15,8 @@ from mscap.service.accuracy import relative_difference
 from mscap.service.selection import RunSummary, run_id
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "TEMP_PREFIX", "ROOT_ATTRS", "RUN_ATTRS", "RUN_DATASETS", "HISTORY_COLUMNS",
-           "SELECTION_ITEMS", "schema_markdown", "RunRecord", "record_from_result", "failed_record", "record_bytes",
+           "SELECTION_ITEMS", "schema_markdown", "RunRecord", "record_from_result", "history_columns", "failed_record",
+           "record_bytes",
            "run_summary"]
 
 FORMAT = "mscap-results"
@@ -46,12 +47,12 @@ RUN_ATTRS = {
     "status": ("str", '"ok", "pruned" (stopped at a rung as dominated within its k, mscap.service.pruning; '
                       'its design and history up to there are stored; it counts as finished, not failed, and is '
                       'never the best run of its k) '
-                      'or "failed"'),
+                      'or "failed" (its history up to the failure is kept)'),
     "error": ("str", 'error text of a failed run ("" if ok)'),
     "reason": ("str", 'why the optimiser stopped ("" if failed; for a pruned run the rule\'s numbers: step, score, '
                       'threshold, peers, and eta or "envelope rule")'),
     "wall_s": ("float", "wall time of the run on its worker (s)"),
-    "iterations": ("int", "accepted optimiser steps (0 if failed)"),
+    "iterations": ("int", "accepted optimiser steps (if failed: before the failure)"),
     "rank": ("int", "MPI rank of the worker that ran it (0 without MPI)"),
     "metric_pF": ("float", "final min over pose pairs of the L1 distance of capacitance vectors (NaN if failed)"),
     "error_estimate": ("float", "max relative difference of the final capacitances from the same design's on a "
@@ -76,7 +77,8 @@ RUN_DATASETS = {
     "initial_capacitance_pF": ("float64 (n_poses, k)", "capacitance per pose and capacitor, initial layout"),
     "final_capacitance_pF": ("float64 (n_poses, k)", "the same for the optimised layout (0 rows if failed)"),
     "finer_capacitance_pF": ("float64 (n_poses, k)", "the optimised layout on the finer mesh (0 rows if not checked)"),
-    "history/<column>": ("one 1-D dataset per column", "the optimiser history, one row per event (below)"),
+    "history/<column>": ("one 1-D dataset per column", "the optimiser history, one row per event (below); "
+                         "a failed run's up to the failure"),
 }
 
 #: History columns (``mscap.design.optimizer.HISTORY_FIELDS``) and their HDF5 types.
@@ -130,7 +132,8 @@ class RunRecord:
 
     Outlines are tuples of ``(n_j, 2)`` arrays (mm); capacitances ``(n_poses, k)`` (pF);
     ``history`` maps every name of ``HISTORY_FIELDS`` to a 1-D array. A failed run has
-    ``status == "failed"``, its ``error`` text and empty final outlines/capacitances.
+    ``status == "failed"``, its ``error`` text, empty final outlines/capacitances and
+    its history up to the failure.
     Plain numpy and str only, so it pickles cheaply over MPI.
     """
 
@@ -216,9 +219,7 @@ def record_from_result(k: int, seed: int, init: str, initial_layout, result, pos
     poses (or their names).
     """
     names = tuple(p if isinstance(p, str) else p.name for p in poses)
-    rows = [r.row() for r in result.history]
-    history = {name: np.array([row[i] for row in rows], dtype=object if kind == "str" else kind)
-               for i, (name, kind) in enumerate(HISTORY_COLUMNS.items())}
+    history = history_columns(result.history)
     return RunRecord(k=k, seed=seed, init=init, status="ok", reason=str(result.reason), wall_s=float(wall_s),
                      iterations=int(result.iterations), rank=rank, poses=names,
                      initial_outlines=tuple(np.array(o, dtype=float) for o in initial_layout.outlines),
@@ -228,12 +229,22 @@ def record_from_result(k: int, seed: int, init: str, initial_layout, result, pos
                      history=history)
 
 
+def history_columns(records) -> dict[str, np.ndarray]:
+    """The stored history (one 1-D array per column of ``HISTORY_COLUMNS``) of the
+    optimiser's :class:`~mscap.design.history.Record` rows."""
+    rows = [r.row() for r in records]
+    return {name: np.array([row[i] for row in rows], dtype=object if kind == "str" else kind)
+            for i, (name, kind) in enumerate(HISTORY_COLUMNS.items())}
+
+
 def failed_record(k: int, seed: int, init: str, error: str, wall_s: float, rank: int = 0,
-                  initial_layout=None) -> RunRecord:
+                  initial_layout=None, history=()) -> RunRecord:
     """A failed ``RunRecord`` with its error text (and the initial layout, if one was
-    built before the failure)."""
+    built before the failure, and the optimiser's ``history`` records up to it)."""
     outlines = () if initial_layout is None else tuple(np.array(o, dtype=float) for o in initial_layout.outlines)
+    columns = history_columns(history)
     return RunRecord(k=k, seed=seed, init=init, status="failed", error=str(error), wall_s=float(wall_s),
+                     iterations=int(history[-1].iteration) if len(history) else 0, history=columns,
                      rank=rank, initial_outlines=outlines, initial_capacitance_pF=np.zeros((0, k)),
                      final_capacitance_pF=np.zeros((0, k)))
 

@@ -20,7 +20,7 @@ from mscap.design.history import HISTORY_FIELDS
 from mscap.design.optimizer import _LBFGS, _line_search, _plateau, optimize
 from mscap.design.pipeline import Design, build_design
 from mscap.design.remesh import remesh, resample_outline
-from mscap.errors import ElasticError, InvertedMeshError
+from mscap.errors import ElasticError, GeometryError, InvertedMeshError
 from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import check_layout
 from mscap.scene import load_scene
@@ -77,6 +77,45 @@ def test_resampling_keeps_corners_and_spacing():
     assert len(fine) == 32
     assert all((np.abs(fine - c).sum(axis=1) < 1e-12).any() for c in square)
     np.testing.assert_allclose(np.linalg.norm(np.roll(fine, -1, axis=0) - fine, axis=1), 0.5)
+
+
+
+def slotted_plate(amplitude=0.8062, width=0.2990, wavelength=2.4938, depth=6.9289, h=0.02):
+    """A 20 × 10 mm plate with a slot cut from its right side to x = ``depth``: the slot
+    follows a sinusoid and is ``width`` wide, its end a half circle; every smooth stretch
+    sampled at ``h`` (no corner there)."""
+    k = 2 * np.pi / wavelength
+    xs = np.arange(20.0, depth, -h)
+    t = np.arange(0.0, np.pi, 2 * h / width)
+    cap = np.c_[depth - 0.5 * width * np.sin(t), amplitude * np.sin(k * depth) - 0.5 * width * np.cos(t)]
+    outline = np.vstack([np.c_[xs, amplitude * np.sin(k * xs) - width / 2], cap,
+                         np.c_[xs[::-1], amplitude * np.sin(k * xs[::-1]) + width / 2],
+                         [(20.0, 5.0), (0.0, 5.0), (0.0, -5.0), (20.0, -5.0)]])
+    return outline if geometry.signed_area(outline) > 0 else outline[::-1]
+
+
+def test_a_remesh_resamples_an_outline_finer_where_its_chords_cross():
+    # 2.4 mm chords of the slotted plate cut across its slot (4 crossings; the outline
+    # itself is simple): the remesh resamples that outline at half the spacing until the
+    # layout is valid, instead of failing the run (a poking paper start at k = 6 failed
+    # so after 467 s), and leaves a valid outline's resampling alone.
+    from types import SimpleNamespace
+
+    from mscap.design.remesh import resampled_layout
+    from mscap.geometry.layout import Layout
+
+    slotted, square = slotted_plate(), geometry.square((40.0, 0.0), 8.0)
+    assert not geometry.self_intersections(slotted)
+    assert geometry.self_intersections(resample_outline(slotted, 2.4))
+    scene = SimpleNamespace(sheet_outline_mm=geometry.square((25.0, 0.0), 60.0), min_gap_mm=1.0)
+    layout = resampled_layout([slotted, square], 2.4, 0.075, scene)
+    check_layout(layout, scene.sheet_outline_mm, scene.min_gap_mm)
+    assert 2 * len(resample_outline(slotted, 2.4)) <= len(layout.outlines[0]) < len(slotted)
+    np.testing.assert_array_equal(layout.outlines[1], resample_outline(square, 2.4))
+    # Nothing finer than the finest spacing: the outline as it is.
+    np.testing.assert_array_equal(resampled_layout([slotted, square], 2.4, 2.0, scene).outlines[0], slotted)
+    with pytest.raises(GeometryError, match="overlap"):  # an invalid layout still fails, naming why
+        resampled_layout([slotted, geometry.square((10.0, 0.0), 4.0)], 2.4, 0.075, scene)
 
 
 POKES = {"name": "poke_cross", "sheet": {"width_mm": 40.0, "height_mm": 30.0},

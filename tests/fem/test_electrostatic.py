@@ -102,16 +102,16 @@ def test_p2_element_energy_of_a_quadratic_is_exact():
     q = np.array([[0.3, 1.2, -0.7], [1.2, -2.0, 0.5], [-0.7, 0.5, 1.1]])  # φ = xᵀQx + bᵀx
     b = np.array([0.2, -0.4, 0.9])
     coords = np.zeros((problem.n_dofs, 3))
-    coords[problem.dofs[:, :4]] = x[problem.tets]
-    edges = x[problem.tets[:, fem.TET_EDGES]]
+    coords[problem.dofs[:, :4]] = x[problem.cells]
+    edges = x[problem.cells[:, fem.TET_EDGES]]
     coords[problem.dofs[:, 4:]] = edges.mean(axis=2)
     phi = np.einsum("ni,ij,nj->n", coords, q, coords) + coords @ b
     data = es.assemble(problem, x)
     stiffness = sp.csr_matrix((data, problem.indices, problem.indptr), shape=(problem.n_dofs,) * 2)
     grad2 = lambda p: np.sum((2 * p @ q + b) ** 2, axis=-1)  # noqa: E731
-    vol = fem.jacobians(x, problem.tets)[1]
+    vol = fem.jacobians(x, problem.cells)[1]
     exact = np.sum(problem.permittivity * vol * (4 * grad2(edges.mean(axis=2)).sum(axis=1)
-                                                  - grad2(x[problem.tets]).sum(axis=1)) / 20)
+                                                  - grad2(x[problem.cells]).sum(axis=1)) / 20)
     assert phi @ (stiffness @ phi) == pytest.approx(exact, rel=1e-12)
     assert np.abs(stiffness @ np.ones(problem.n_dofs)).max() < 1e-12 * np.abs(data).max()
 
@@ -197,7 +197,7 @@ def test_p1_kernels_equal_the_general_ones(problems, two_plates):
     quadrature formulas they replace, on a generic configuration and a general W."""
     problem = problems[1]
     x = perturbed(two_plates, 0.02)
-    tets, eps = problem.tets, problem.permittivity
+    tets, eps = problem.cells, problem.permittivity
     np.testing.assert_allclose(fem.stiffness(fem.P1, x, tets, eps), fem._tensor_stiffness(fem.P1, x, tets, eps),
                                rtol=1e-12, atol=1e-14 * np.abs(fem._tensor_stiffness(fem.P1, x, tets, eps)).max())
     rng = np.random.default_rng(5)
@@ -213,8 +213,8 @@ def test_upper_entries_are_the_element_matrices_upper_triangles(problems, two_pl
     element matrices, from the P1 fast path or the general one."""
     problem = problems[order]
     x = perturbed(two_plates, 0.02)
-    full = fem.stiffness(problem.element, x, problem.tets, problem.permittivity)
-    upper = fem.upper_stiffness(problem.element, np.ascontiguousarray(x.T), problem.tets, problem.permittivity)
+    full = fem.stiffness(problem.element, x, problem.cells, problem.permittivity)
+    upper = fem.upper_stiffness(problem.element, np.ascontiguousarray(x.T), problem.cells, problem.permittivity)
     a, b = np.triu_indices(problem.dofs.shape[1])
     np.testing.assert_allclose(upper, full[:, a, b].T, rtol=1e-12, atol=1e-14 * np.abs(full).max())
 
@@ -237,7 +237,7 @@ def test_blockwise_assembly_equals_one_shot_assembly(two_plates, order, monkeypa
         monkeypatch.setattr(fem, "BLOCK", block)
         problem = es.build_problem(two_plates, make_layers(), order)
         nb = problem.dofs.shape[1]
-        local = fem.stiffness(problem.element, x, problem.tets, problem.permittivity)
+        local = fem.stiffness(problem.element, x, problem.cells, problem.permittivity)
         rows, cols = np.repeat(problem.dofs, nb, axis=1).ravel(), np.tile(problem.dofs, (1, nb)).ravel()
         full = sp.coo_matrix((local.ravel(), (rows, cols)), shape=(problem.n_dofs,) * 2).tocsr()
         full.sort_indices()
@@ -427,10 +427,10 @@ def test_index_arrays_are_int32_and_give_the_int64_capacitances(problems, two_pl
     # (k = 6) the electrostatic problem held 401 MB with int64 and 348 MB with int32
     # indices (docs/performance.md §9). The narrower type must not change a bit.
     problem = problems[order]
-    names = ("tets", "dofs", "indices", "upper_to_csr", "above", "below", "ff_entries",
+    names = ("cells", "dofs", "indices", "upper_to_csr", "above", "below", "ff_entries",
              "ff_indices", "fd_entries", "fd_target", "free")
     assert {name: getattr(problem, name).dtype for name in names} == {name: np.dtype(np.int32) for name in names}
     wide = replace(problem, **{name: getattr(problem, name).astype(np.int64)
-                               for name in ("tets", "dofs", "indices", "ff_indices", "fd_target")})
+                               for name in ("cells", "dofs", "indices", "ff_indices", "fd_target")})
     x = perturbed(two_plates)
     np.testing.assert_array_equal(es.solve(wide, x).capacitance_pF, es.solve(problem, x).capacitance_pF)

@@ -42,7 +42,8 @@ def plate_scene(tmp_path, name, mesh=None):
 
 
 def capacitance(scene):
-    return float(es.solve(es.build_problem(mesh_scene(scene), scene.layers, scene.mesh.order)).capacitance_pF[0])
+    problem = es.build_problem(mesh_scene(scene), scene.layers, scene.mesh.order, scene.mesh.element)
+    return float(es.solve(problem).capacitance_pF[0])
 
 
 def test_predicted_error_of_a_square_is_the_edge_over_the_area():
@@ -54,8 +55,11 @@ def test_predicted_error_of_a_square_is_the_edge_over_the_area():
 
 
 def test_the_ladder_grows_more_accurate_and_sizes_scale_with_the_gap():
-    errors = [rung.e_over_eps for rung in sizing.LADDER]
-    assert errors == sorted(errors, reverse=True)
+    for ladder in (sizing.LADDER, sizing.TET_LADDER):
+        errors = [rung.e_over_eps for rung in ladder]
+        assert errors == sorted(errors, reverse=True)
+    assert all(rung.element == "tet" for rung in sizing.TET_LADDER)
+    assert sizing.rung_settings(sizing.LADDER[0], 0.14, 0.56).element == "prism"
     rung = sizing.LADDER[1]
     thin, thick = sizing.rung_settings(rung, 0.14, 0.56), sizing.rung_settings(rung, 0.28, 1.12)
     assert thick.edge_length_outline_mm == pytest.approx(2 * thin.edge_length_outline_mm)
@@ -99,11 +103,14 @@ def test_the_hand_set_paper_mesh_misses_on_a_small_plate(tmp_path):
 
 
 def test_size_keys_given_with_a_tolerance_override_the_ladder(tmp_path):
-    scene = plate_scene(tmp_path, "square 20", {"tolerance": 0.01, "elements_per_layer": 2, "edge_length_mm": 4.0})
+    scene = plate_scene(tmp_path, "square 20", {"tolerance": 0.01, "grading_distance_mm": 3.0, "edge_length_mm": 4.0})
     sized = plate_scene(tmp_path, "square 20", {"tolerance": 0.01})
-    assert scene.mesh.elements_per_layer == 2 and scene.mesh.edge_length_mm == 4.0
+    assert scene.mesh.grading_distance_mm == 3.0 and scene.mesh.edge_length_mm == 4.0
     assert scene.mesh.edge_length_outline_mm == sized.mesh.edge_length_outline_mm
-    assert sized.mesh.elements_per_layer == 1 and sized.mesh.edge_length_mm == sizing.FAR_EDGE_MM
+    assert sized.mesh.grading_distance_mm != 3.0 and sized.mesh.edge_length_mm == sizing.FAR_EDGE_MM
+    # elements per layer given: the cheapest rung with them (P2, d/2, 2 per layer)
+    layered = plate_scene(tmp_path, "square 20", {"tolerance": 0.01, "elements_per_layer": 2})
+    assert (layered.mesh.elements_per_layer, layered.mesh.order, layered.mesh.element) == (2, 2, "tet")
     # a tighter tolerance climbs the ladder
     tight = plate_scene(tmp_path, "square 20", {"tolerance": 0.002})
     assert (tight.mesh.order, -tight.mesh.edge_length_outline_mm) > (sized.mesh.order, -sized.mesh.edge_length_outline_mm)
@@ -120,7 +127,7 @@ def test_each_layout_is_sized_for_its_own_plates_and_hand_sizes_stay(tmp_path):
     expected, _, _ = sizing.settings_for_tolerance(0.01, small.outlines, GAP_MM, STACK, far_mm=4.0)
     assert resized.layout is small and resized.mesh.edge_length_mm == 4.0
     assert dataclasses.replace(resized.mesh, tolerance=None, overrides=()) == expected
-    assert resized.mesh.order == 2 and scene.mesh.order == 1
+    assert resized.mesh.edge_length_outline_mm < scene.mesh.edge_length_outline_mm
     hand = plate_scene(tmp_path, "square 20", {"edge_length_mm": 5.0, "edge_length_outline_mm": 0.3,
                                                "grading_distance_mm": 2.0})
     assert sizing.with_layout(hand, small).mesh == hand.mesh
@@ -157,15 +164,20 @@ def test_both_meshes_are_refined_under_each_ball(tmp_path):
     assert lengths[middle < 7.0].max() > 2.0
 
 
-def test_a_scene_that_fixes_the_order_gets_the_best_rung_of_that_order(tmp_path):
-    # A 6 mm plate at 1 % needs P2 (measured P1 at d/2: +2.2 %); with `order = 1` given,
-    # the ladder keeps to P1 rungs and takes the most accurate, predicting more than 1 %.
+def test_a_scene_that_fixes_the_element_gets_the_best_rung_of_it(tmp_path):
+    # A 6 mm plate at 1 %: prisms at d/2 (predicted 0.84 %). With `element = "tet"` the
+    # ladder keeps to tets, where it needs P2 (measured P1 at d/2: +2.2 %); with P1 tets
+    # (`order = 1` too) it takes their most accurate rung, predicting more than 1 %.
     free = plate_scene(tmp_path, "square 6", {"tolerance": 0.01})
-    p1 = plate_scene(tmp_path, "square 6", {"tolerance": 0.01, "order": 1})
-    assert free.mesh.order == 2 and p1.mesh.order == 1
-    best_p1 = [rung for rung in sizing.LADDER if rung.order == 1][-1]
+    tets = plate_scene(tmp_path, "square 6", {"tolerance": 0.01, "element": "tet"})
+    p1 = plate_scene(tmp_path, "square 6", {"tolerance": 0.01, "element": "tet", "order": 1})
+    assert (free.mesh.element, free.mesh.order) == ("prism", 1)
+    assert free.mesh.edge_length_outline_mm == pytest.approx(0.5 * GAP_MM)
+    assert (tets.mesh.element, tets.mesh.order) == ("tet", 2) and (p1.mesh.element, p1.mesh.order) == ("tet", 1)
+    best_p1 = [rung for rung in sizing.TET_LADDER if rung.order == 1][-1]
     assert p1.mesh.edge_length_outline_mm == pytest.approx(best_p1.outline_over_gap * GAP_MM)
     assert p1.mesh.fringe_slope == best_p1.slope
+    assert sizing.predicted_errors(best_p1, [PLATES["square 6"]], GAP_MM)[0] > 0.01
 
 
 def test_a_tiny_ball_asks_for_no_edge_finer_than_the_outlines(tmp_path):

@@ -276,6 +276,37 @@ def test_a_stopping_job_keeps_a_finished_run_without_its_check(scene_file):
     assert multistart._with_check(load_scene(scene_file), record, None, None, None, stopping) is record
 
 
+def test_a_start_that_fails_midway_keeps_its_history(scene_file, tmp_path, monkeypatch):
+    # Nothing a start did is lost when it dies: the optimiser's rows up to the failure
+    # and the initial layout are stored with the error (a poking paper start at k = 6
+    # failed after 467 s and 64 steps, and its file held none of them).
+    from mpi4py import MPI
+
+    from mscap.design import optimizer
+    from mscap.errors import ElasticError
+    from mscap.scene import load_scene
+    from mscap.service import multistart
+
+    real, calls = optimizer._gradient, []
+
+    def failing(design, evaluation):
+        calls.append(1)
+        if len(calls) == 3:
+            raise ElasticError("pose p0: Newton failed at load step 1 (forced by the test)")
+        return real(design, evaluation)
+    monkeypatch.setattr(optimizer, "_gradient", failing)
+    out = tmp_path / "midway.h5"
+    scene = load_scene(scene_file)
+    multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=4,
+                              select_configs=lambda c: c.id == "k2_s2000_lloyd")
+    store = read_store(out)
+    run = read_run(store, "k2_s2000_lloyd")
+    store.close()
+    assert run.status == "failed" and "Newton failed at load step 1 (forced" in run.error
+    assert list(run.history["event"][:1]) == ["start"] and len(run.history["J"]) == 2 and run.iterations == 1
+    assert len(run.initial_outlines) == 2 and run.final_outlines == ()
+
+
 def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_path, monkeypatch):
     from mpi4py import MPI
 
