@@ -104,11 +104,10 @@ def _pair_coefficients() -> np.ndarray:
     with ``M_q`` the Gram matrix of the cofactor columns, whose 6 distinct entries per
     point (``i ≤ j``) are the 36 columns; off-diagonal ``(i, j)`` count twice."""
     i_up, j_up = np.triu_indices(3)
-    out = np.empty((21, 6, 6))
+    d = GRADIENTS
+    out = np.empty((21, 6, 6))  # [entry, point, Gram pair]
     for n, (a, b) in enumerate(zip(*UPPER)):
-        d = GRADIENTS
-        both = d[:, a, i_up] * d[:, b, j_up] + np.where(i_up != j_up, d[:, a, j_up] * d[:, b, i_up], 0.0)
-        out[n] = both  # (points, pairs)
+        out[n] = d[:, a, i_up] * d[:, b, j_up] + np.where(i_up != j_up, d[:, a, j_up] * d[:, b, i_up], 0.0)
     return out.reshape(21, 36)
 
 
