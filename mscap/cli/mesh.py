@@ -45,7 +45,7 @@ def run(args) -> int:
           f"{scene.thickness_mm:.3f} mm thick")
     m = scene.mesh
     why = f"for a {100 * m.tolerance:g} % capacitance tolerance" if m.tolerance else "set by hand"
-    print(f"  sizes ({why}): P{m.order}, edge {m.edge_length_outline_mm:.3g} mm at the outlines growing to "
+    print(f"  sizes ({why}): P{m.order} {m.element}s, edge {m.edge_length_outline_mm:.3g} mm at the outlines growing to "
           f"{m.edge_length_mm:g} mm over {m.grading_distance_mm:.3g} mm, {m.elements_per_layer} per layer")
     for line in report.lines():
         print("  " + line)

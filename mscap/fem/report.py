@@ -101,7 +101,7 @@ def rest_capacitance(scene: Scene, order: int | None = None, maxwell: bool = Fal
 def rest_capacitance_record(scene: Scene, rest: RestCapacitance, written=None) -> dict:
     """One JSON-ready record of :func:`rest_capacitance`."""
     caps, mesh = rest.capacitances, rest.mesh
-    record = {"scene": scene.name, "order": rest.order, "solver": rest.solver,
+    record = {"scene": scene.name, "order": rest.order, "element": rest.problem.shape, "solver": rest.solver,
               "capacitance_pF": caps.capacitance_pF.tolist()}
     if caps.maxwell_pF is not None:
         record["maxwell_pF"] = caps.maxwell_pF.tolist()
@@ -118,8 +118,9 @@ def rest_capacitance_text(scene: Scene, rest: RestCapacitance) -> str:
     caps, mesh, problem, times = rest.capacitances, rest.mesh, rest.problem, rest.times
     middle = scene.layers[2]
     areas = scene.layout.areas_mm2()
-    lines = [f"scene {scene.name} ({scene.path}): {problem.k} capacitors, P{rest.order}",
-             f"  {len(mesh.points)} vertices, {len(mesh.tets)} tets, {problem.n_dofs} dofs; solver {rest.solver}",
+    cells = f"{len(mesh.tets)} tets" if problem.shape == "tet" else f"{len(mesh.tets) // 3} prisms"
+    lines = [f"scene {scene.name} ({scene.path}): {problem.k} capacitors, P{rest.order} {problem.shape}s",
+             f"  {len(mesh.points)} vertices, {cells}, {problem.n_dofs} dofs; solver {rest.solver}",
              f"  {'capacitor':>9} {'area_mm2':>10} {'C_pF':>12} {'C/(eps A/d)':>12}"]
     for j, c in enumerate(caps.capacitance_pF):
         plate = middle.material.permittivity_pF_per_mm * areas[j] / middle.thickness_mm
