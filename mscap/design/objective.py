@@ -89,6 +89,13 @@ class Dissimilarity(Term):
         return value, 2 * np.einsum("ab,abk->ak", w, diff)
 
 
+#: Two points of one outline form a neck (or a slot's two sides) when they are farther
+#: apart along the outline than this many feature sizes: at 2π, a right-angled corner's
+#: two sides never come within the barrier's reach (2 × feature) of each other, and a
+#: corner sharper than 2 arcsin(1/2π) ≈ 18° cannot be kept.
+NECK_ARC = 2 * np.pi
+
+
 @dataclass(frozen=True, eq=False)
 class SeparationBarrier(Term):
     """IPC barrier keeping capacitor outlines ``gap_mm`` apart and ``margin_mm`` inside the
@@ -99,6 +106,10 @@ class SeparationBarrier(Term):
     gap_mm: float
     dhat_mm: float | None = None
     margin_mm: float | None = None
+    #: Narrowest neck or slot of a plate (mm; 0: none): two parts of one outline farther
+    #: apart along it than :data:`NECK_ARC` times this stay this far apart, with the
+    #: barrier acting over one more of it ([optimizer] min_feature_mm).
+    feature_mm: float = 0.0
     sheet: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -123,6 +134,26 @@ class SeparationBarrier(Term):
         return (np.vstack(polygons), owner, start + (local + 1) % size,
                 start + (local - 1) % size, sizes)
 
+    def _necks(self, x, owner, nxt, p, e) -> np.ndarray:
+        """Which same-outline pairs ``(p, e)`` are a neck's: farther apart along the outline
+        (the shorter way round, to the nearer end of edge e) than ``NECK_ARC · feature_mm``."""
+        same = owner[p] == owner[e]
+        if self.feature_mm <= 0 or not same.any():
+            return np.zeros(len(p), dtype=bool)
+        step = np.linalg.norm(x[nxt] - x, axis=1)
+        arc = np.zeros(len(x))
+        perimeter = np.zeros(len(x))
+        for o in np.unique(owner[p[same]]):
+            members = np.flatnonzero(owner == o)
+            arc[members] = np.concatenate([[0.0], np.cumsum(step[members])[:-1]])
+            perimeter[members] = step[members].sum()
+
+        def along(a, b):
+            gap = np.abs(arc[a] - arc[b])
+            return np.minimum(gap, perimeter[a] - gap)
+
+        return same & (np.minimum(along(p, e), along(p, nxt[e])) > NECK_ARC * self.feature_mm)
+
     def _pairs(self, x, owner, nxt, prv, reach, same_outline, v=None, keep=0.0):
         """Vertex–edge pairs ``(p, e)`` (edge e runs from vertex e to ``nxt[e]``) that may
         come within ``shift + reach``; pairs within one outline only if ``same_outline``.
@@ -146,10 +177,12 @@ class SeparationBarrier(Term):
                 found.append(np.c_[members[a][near["i"]], members[b][near["j"]]])
         i, j = np.concatenate(found).T
         gap = np.full(len(i), base)
-        if same_outline:  # the capacitors' own pairs (the sheet's own edges never enter)
-            si, sj = np.concatenate([members[o][trees[o].query_pairs(longest + reach, output_type="ndarray")]
+        own = longest + self.feature_mm  # an outline's own pairs: no gap, or a neck's
+        if same_outline or self.feature_mm > 0:  # the capacitors' own pairs (the sheet's own edges never enter)
+            radius = own + (reach if same_outline else self.feature_mm)
+            si, sj = np.concatenate([members[o][trees[o].query_pairs(radius, output_type="ndarray")]
                                      for o in range(sheet)] + [np.empty((0, 2), dtype=np.intp)]).T
-            i, j, gap = np.r_[i, si], np.r_[j, sj], np.r_[gap, np.full(len(si), longest)]
+            i, j, gap = np.r_[i, si], np.r_[j, sj], np.r_[gap, np.full(len(si), own)]
         if v is not None:
             apart = np.linalg.norm(x[i] - x[j], axis=1) - gap
             closing = np.linalg.norm(v[i] - v[j], axis=1) / (1 - keep)
@@ -162,45 +195,68 @@ class SeparationBarrier(Term):
         use = owner[p] != owner[e]
         if same_outline:
             use |= (owner[p] == owner[e]) & (p != e) & (p != nxt[e])
+        elif self.feature_mm > 0:
+            use |= self._necks(x, owner, nxt, p, e)
         code = np.unique(p[use] * len(x) + e[use])
         return code // len(x), code % len(x)
 
-    def _shift(self, owner, p, e):
+    def _shift(self, owner, p, e, necks):
+        """The gap each pair must keep: ``gap_mm`` between capacitors, ``margin_mm`` to the
+        sheet, ``feature_mm`` across a neck (``necks``), none within an outline otherwise."""
         sheet = owner[-1]
         shift = np.where((owner[p] == sheet) | (owner[e] == sheet), self.margin_mm, self.gap_mm)
-        return np.where(owner[p] == owner[e], 0.0, shift)
+        return np.where(owner[p] == owner[e], np.where(necks, self.feature_mm, 0.0), shift)
 
-    def _violation(self, owner, p, e, s):
+    def _barrier(self, s, necks):
+        """b(s) per pair, with d̂ = ``feature_mm`` across necks and ``dhat_mm`` elsewhere."""
+        out = barrier(s, self.dhat_mm)
+        if necks.any():
+            out[necks] = barrier(s[necks], self.feature_mm)
+        return out
+
+    def _barrier_slope(self, s, necks):
+        """b'(s) per pair, as :meth:`_barrier`."""
+        out = barrier_derivatives(s, self.dhat_mm)[0]
+        if necks.any():
+            out[necks] = barrier_derivatives(s[necks], self.feature_mm)[0]
+        return out
+
+    def _violation(self, owner, p, e, s, necks):
         bad = np.flatnonzero(s <= 0)
         if len(bad):
             i, j = sorted((int(owner[p[bad[0]]]), int(owner[e[bad[0]]])))
+            if necks[bad[0]]:
+                raise GeometryError(f"capacitor {i} has a neck or slot narrower than [optimizer] min_feature_mm "
+                                    f"= {self.feature_mm:g} (by {-s[bad[0]]:.3g} mm)", i)
             what = "the sheet edge" if j == owner[-1] else f"capacitor {j}"
             raise GeometryError(f"capacitor {i} violates the minimum gap to {what} "
                                 f"(by {-s[bad[0]]:.3g} mm)", i)
 
     def value(self, outlines) -> float:
-        """B (mm²); ``inf`` when a minimum gap or margin is violated."""
+        """B (mm²); ``inf`` when a minimum gap, margin or feature size is violated."""
         x, owner, nxt, prv, _ = self._stack(outlines)
         p, e = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
         d, _, _ = segment_projection(x[p], x[e], x[nxt[e]])
-        return float(barrier(d - self._shift(owner, p, e), self.dhat_mm).sum())
+        necks = self._necks(x, owner, nxt, p, e)
+        return float(self._barrier(d - self._shift(owner, p, e, necks), necks).sum())
 
     def value_and_gradient(self, outlines):
         """B and a tuple of ``(m_i, 2)`` gradients (mm); raises GeometryError if infeasible."""
         x, owner, nxt, prv, sizes = self._stack(outlines)
         p, e = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
         d, t, r = segment_projection(x[p], x[e], x[nxt[e]])
-        s = d - self._shift(owner, p, e)
-        self._violation(owner, p, e, s)
-        on = s < self.dhat_mm
-        p, e, d, t, r, s = p[on], e[on], d[on], t[on], r[on], s[on]
+        necks = self._necks(x, owner, nxt, p, e)
+        s = d - self._shift(owner, p, e, necks)
+        self._violation(owner, p, e, s, necks)
+        on = s < np.where(necks, self.feature_mm, self.dhat_mm)
+        p, e, d, t, r, s, necks = p[on], e[on], d[on], t[on], r[on], s[on], necks[on]
         # ∂d/∂p = n, ∂d/∂a = −(1 − t) n, ∂d/∂b = −t n (t is optimal, so its variation drops).
-        force = (barrier_derivatives(s, self.dhat_mm)[0] / d)[:, None] * r
+        force = (self._barrier_slope(s, necks) / d)[:, None] * r
         grad = np.zeros_like(x)
         np.add.at(grad, p, force)
         np.add.at(grad, e, -(1 - t)[:, None] * force)
         np.add.at(grad, nxt[e], -t[:, None] * force)
-        value = float(barrier(s, self.dhat_mm).sum())
+        value = float(self._barrier(s, necks).sum())
         return value, tuple(np.split(grad, np.cumsum(sizes)[:-1])[:-1])
 
     def max_step(self, outlines, directions, keep: float = 0.1, iterations: int = 50) -> float:
@@ -224,8 +280,9 @@ class SeparationBarrier(Term):
         p, e = self._pairs(x, owner, nxt, prv, 2 * speed / (1 - keep), True, v, keep)
         b = nxt[e]
         d, _, _ = segment_projection(x[p], x[e], x[b])
-        shift = self._shift(owner, p, e)
-        self._violation(owner, p, e, d - shift)
+        necks = self._necks(x, owner, nxt, p, e)
+        shift = self._shift(owner, p, e, necks)
+        self._violation(owner, p, e, d - shift, necks)
         target = shift + keep * (d - shift)
         lipschitz = np.maximum(np.linalg.norm(v[p] - v[e], axis=1),
                                np.linalg.norm(v[p] - v[b], axis=1))
@@ -396,10 +453,11 @@ class PlateAreaBarrier(Term):
 def layout_objective(scene: Scene, dhat_mm: float | None = None) -> LayoutObjective:
     """J = −d + w_b (B + B_area) + w_s S from a scene's ``[optimizer]`` (``distance``,
     ``tau_pF2`` / ``tau_noise`` / ``tau_mm``, ``barrier_weight``, ``smoothing_weight``,
-    ``max_plate_area_mm2``) and ``[capacitors] min_gap_mm``."""
+    ``max_plate_area_mm2``, ``min_feature_mm``) and ``[capacitors] min_gap_mm``."""
     settings = scene.optimizer
     area = PlateAreaBarrier(settings.max_plate_area_mm2) if settings.max_plate_area_mm2 > 0 else None
     return LayoutObjective(distance=capacitance_term(scene),
-                           barrier=SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm),
+                           barrier=SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm,
+                                                     feature_mm=settings.min_feature_mm),
                            smoothing=LaplacianSmoothing(), area=area, barrier_weight=settings.barrier_weight,
                            smoothing_weight=settings.smoothing_weight)

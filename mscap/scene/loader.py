@@ -535,6 +535,7 @@ def check_optimizer(path: str, optimizer: OptimizerSettings, calibration: Calibr
                              ("cascade_levels", 0, MAX_CASCADE_LEVELS, "each doubles the control points"),
                              ("control_spacing_mm", MIN_LENGTH_MM, MAX_LENGTH_MM, "1 µm to 10 m"),
                              ("remesh_angle_deg", 0, 60, "no triangle has a smallest angle above 60°"),
+                             ("min_feature_mm", 0, MAX_LENGTH_MM, "a plate's narrowest neck or slot; 0: no limit"),
                              ("stall_window", 0, MAX_ITERATIONS, "accepted steps; 0 turns the plateau rule off")):
         value = getattr(optimizer, key)
         if not lo <= value <= hi:

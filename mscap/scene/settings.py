@@ -259,7 +259,9 @@ class OptimizerSettings:
     Remesh when a 2D angle drops below ``remesh_angle_deg`` (or below half the fresh
     mesh's smallest angle, if that is less); ``keep_memory_at_remesh``: the L-BFGS
     curvature pairs carry over to the new mesh (``false``: restart them, the behaviour
-    before 2026-12-04)."""
+    before 2026-12-04). ``min_feature_mm``: the narrowest neck or slot a plate may have
+    (0: no limit), a barrier like the gap's between two parts of one outline
+    (:class:`mscap.design.objective.SeparationBarrier`)."""
 
     distance: str = "pF"
     tau_pF2: float = 1.0
@@ -282,6 +284,7 @@ class OptimizerSettings:
     max_step_mm: float = 2.0
     remesh_angle_deg: float = 10.0
     keep_memory_at_remesh: bool = True
+    min_feature_mm: float = 0.0
 
 
 @dataclass(frozen=True)

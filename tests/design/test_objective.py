@@ -213,6 +213,58 @@ def test_step_bound_stops_self_intersection():
     assert not geometry.self_intersections(u + bound * closing)
 
 
+def slotted_square(width, spacing=None):
+    """A 5 mm square with a slot ``width`` wide cut 4 mm down from its top edge (a U);
+    with ``spacing``, every edge split into pieces about that long."""
+    half = 0.5 * width
+    u = np.array([[0, 0], [5, 0], [5, 5], [2.5 + half, 5], [2.5 + half, 1], [2.5 - half, 1], [2.5 - half, 5],
+                  [0, 5]], float)
+    if spacing is None:
+        return u
+    pieces = [np.linspace(a, b, max(1, int(np.ceil(np.linalg.norm(b - a) / spacing))), endpoint=False)
+              for a, b in zip(u, np.roll(u, -1, axis=0))]
+    return np.vstack(pieces)
+
+
+def test_a_neck_narrower_than_the_feature_size_is_infeasible_and_a_wider_one_repelled():
+    # [optimizer] min_feature_mm: the slot's two sides (a neck of the outline: far apart
+    # along it) keep the feature size apart, the barrier acting over one more of it; the
+    # slot's bottom corners and the square's own corners are not necks.
+    term = SeparationBarrier(SHEET, gap_mm=1.0, feature_mm=0.5)
+    assert SeparationBarrier(SHEET, gap_mm=1.0).value([slotted_square(0.2)]) == 0  # off: as before
+    assert term.value([slotted_square(0.4)]) == np.inf
+    with pytest.raises(GeometryError, match="capacitor 0 has a neck or slot narrower than .*min_feature_mm = 0.5"):
+        term.value_and_gradient([slotted_square(0.4)])
+    assert term.value([slotted_square(1.01)]) == 0
+    assert term.value([geometry.square((0.0, 0.0), 3.0)]) == 0
+    # Four pairs see the 0.8 mm slot: each arm's top vertex against the other arm's side
+    # and against the top edge beyond it (a vertex near a vertex counts once per incident
+    # edge); the bottom vertices are too close to the other side along the outline.
+    assert term.value([slotted_square(0.8)]) == pytest.approx(4 * barrier(np.array([0.3]), 0.5)[0], rel=1e-12)
+    value, (grad,) = term.value_and_gradient([slotted_square(0.8)])
+    assert value > 0 and grad[3, 0] < 0 < grad[6, 0]  # descent opens the slot
+
+
+def test_neck_barrier_gradient_and_step_bound():
+    rng = np.random.default_rng(8)
+    term = SeparationBarrier(SHEET, gap_mm=1.0, feature_mm=0.5)
+    u = slotted_square(0.8, spacing=0.25)
+    u = u + 0.01 * rng.standard_normal(u.shape)
+    assert term.value([u]) > 0
+    rates, error = check_gradient(term, [u], rng, 1e-3)
+    assert np.all(np.abs(rates - 2) < 0.2), rates
+    assert error < 1e-6
+    # Closing the upper slot at 1 mm per unit α: the bound stops the sides at the feature
+    # size plus keep times the rest (0.8 → 0.5 + 0.1 · 0.3): α ≤ 0.27 (the jitter moves it
+    # by a few hundredths), where the neck-blind bound (feature 0) lets them touch.
+    arm = (u[:, 0] > 2.5) & (u[:, 0] < 4.0) & (u[:, 1] > 2.0)
+    closing = np.where(arm[:, None], [-1.0, 0.0], 0.0)
+    bound = term.max_step([u], [closing], keep=0.1)
+    assert 0.2 < bound <= 0.3
+    assert SeparationBarrier(SHEET, gap_mm=1.0).max_step([u], [closing], keep=0.1) > 0.6
+    assert term.value([u + bound * closing]) < np.inf
+
+
 # --- smoothing -------------------------------------------------------------------------
 
 def test_smoothing_of_a_regular_polygon_and_invariances():
@@ -272,3 +324,14 @@ def test_weighted_sum_from_the_scene(small_scene_dict, write_scene):
     assert np.all(np.abs(rates - 2) < 0.2), rates
     assert error < 1e-6
     assert objective.max_step(outlines, [np.zeros_like(o) for o in outlines]) == 1.0
+
+
+def test_the_feature_size_comes_from_the_scene(small_scene_dict, write_scene):
+    from mscap.errors import SceneError
+
+    assert layout_objective(load_scene(write_scene(small_scene_dict))).barrier.feature_mm == 0
+    small_scene_dict["optimizer"] = {"min_feature_mm": 0.75}
+    assert layout_objective(load_scene(write_scene(small_scene_dict))).barrier.feature_mm == 0.75
+    small_scene_dict["optimizer"] = {"min_feature_mm": -1.0}
+    with pytest.raises(SceneError, match=r"optimizer\.min_feature_mm: must be >= 0, got -1.0"):
+        load_scene(write_scene(small_scene_dict))
