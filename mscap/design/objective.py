@@ -20,9 +20,11 @@ the control (Wᵀ). Terms (:mod:`mscap.design.terms`) add and scale.
   is infinite exactly when the min gap is violated and zero once every d ≥ g + d̂
   (d̂ defaults to the gap: the barrier acts between one and two gaps). The sum is
   unweighted; a vertex close to another *vertex* is counted once per incident edge,
-  which a barrier tolerates. Vertices never meet their own outline's edges in B;
-  self-intersection is instead kept out by :meth:`SeparationBarrier.max_step`, which
-  also bounds non-incident vertex–edge pairs of the same outline (shift 0), with the
+  which a barrier tolerates. Vertices meet their own outline's edges in B only across a
+  neck (``feature_mm`` > 0, ``[optimizer] min_feature_mm``: farther apart along the
+  outline than :data:`NECK_ARC` feature sizes; shift and d̂ the feature size);
+  self-intersection is kept out by :meth:`SeparationBarrier.max_step`, which also bounds
+  the other non-incident vertex–edge pairs of the same outline (shift 0), with the
   smoothing term discouraging the spikes that would bring them close.
 - :class:`LaplacianSmoothing` S = Σ_i ‖x_i − (x_{i−1} + x_{i+1})/2‖² (mm²) over closed
   outlines, not length-normalised: invariant under rigid motions, ∝ scale², and for a
