@@ -43,6 +43,8 @@ def glue():
 SCENES = {
     "stretch": stretch,
     "poke": poke_scene_dict,
+    # the electrostatics on prisms (mscap.fem.wedge): their shape derivative in the chain
+    "poke_prism": lambda: poke_scene_dict() | {"mesh": poke_scene_dict()["mesh"] | {"element": "prism"}},
     "glue": glue,
     "stiff": lambda: stretch(1.2, 0.499),
     "extreme": lambda: stretch(2.0),
