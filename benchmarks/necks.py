@@ -20,28 +20,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mscap.design.objective import NECK_ARC  # noqa: E402
-
-
-def narrowest_neck(outline: np.ndarray, along_mm: float, reach_mm: float) -> float:
-    """The smallest distance (mm) between two vertices of the closed ``outline`` that are
-    more than ``along_mm`` apart along it; ``inf`` if none is within ``reach_mm``."""
-    step = np.linalg.norm(np.roll(outline, -1, axis=0) - outline, axis=1)
-    arc = np.concatenate([[0.0], np.cumsum(step)[:-1]])
-    pairs = cKDTree(outline).query_pairs(reach_mm, output_type="ndarray")
-    if not len(pairs):
-        return np.inf
-    apart = np.abs(arc[pairs[:, 0]] - arc[pairs[:, 1]])
-    apart = np.minimum(apart, step.sum() - apart)
-    far = apart > along_mm
-    if not far.any():
-        return np.inf
-    return float(np.linalg.norm(outline[pairs[far, 0]] - outline[pairs[far, 1]], axis=1).min())
+from mscap.geometry.polygons import narrowest_neck  # noqa: E402
 
 
 def main(argv=None) -> None:

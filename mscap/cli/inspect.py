@@ -25,8 +25,8 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from mscap.service.report import (error_estimates, history_text, runs_table, silent_plates,
-                                      silent_plates_text, summary_json, table)
+    from mscap.service.report import (error_estimates, history_text, narrow_necks, narrow_necks_text, runs_table,
+                                      silent_plates, silent_plates_text, summary_json, table)
     from mscap.service.store import finished_ids, read_run, read_store, store_selection
 
     with read_store(args.results) as store:
@@ -38,16 +38,21 @@ def run(args) -> int:
             return 0
         selection = store_selection(store)
         errors = error_estimates(store)
-        silent = []
+        silent, necks, feature = [], [], 0.0
         if selection.chosen_run is not None:
-            silent = silent_plates(read_run(store, selection.chosen_run).final_capacitance_pF)
+            chosen = read_run(store, selection.chosen_run)
+            silent = silent_plates(chosen.final_capacitance_pF)
+            feature, necks = narrow_necks(chosen.final_outlines, str(store.attrs.get("scene_toml", "")))
         if args.json:
             document = summary_json(selection, errors)
             document["silent_plates"] = [{"plate": j, "mean_pF": m, "std_pF": sd} for j, m, sd in silent]
+            document["narrow_necks"] = [{"plate": j, "width_mm": w, "feature_mm": feature} for j, w in necks]
             print(json.dumps(document, indent=1))
         else:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
                                    f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors))
             if silent:
                 print(silent_plates_text(selection.chosen_run, silent))
+            if necks:
+                print(narrow_necks_text(selection.chosen_run, necks, feature))
     return 0

@@ -10,7 +10,7 @@ import numpy as np
 __all__ = [
     "signed_area", "ccw", "edges", "segments_cross", "self_intersections",
     "points_in_polygon", "segment_projection", "point_segment_distance", "boundary_distance",
-    "polygons_intersect", "coarsened", "square", "disk", "rounded_square",
+    "polygons_intersect", "coarsened", "narrowest_neck", "square", "disk", "rounded_square",
 ]
 
 
@@ -166,6 +166,26 @@ def polygons_intersect(p: np.ndarray, q: np.ndarray) -> bool:
     if segments_cross(edges(p), edges(q)).any():
         return True
     return bool(points_in_polygon(p[:1], q)[0] or points_in_polygon(q[:1], p)[0])
+
+
+def narrowest_neck(polygon: np.ndarray, along_mm: float, reach_mm: float) -> float:
+    """The smallest distance (mm) between two vertices of the closed ``polygon`` that are
+    more than ``along_mm`` apart along it (the shorter way round): the width of its
+    narrowest neck or slot; ``inf`` when no such pair is within ``reach_mm``. Vertices
+    only: on an outline sampled at the mesh's outline spacing that is within a spacing."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(polygon, dtype=float)
+    step = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(step)[:-1]])
+    pairs = cKDTree(p).query_pairs(reach_mm, output_type="ndarray")
+    if not len(pairs):
+        return np.inf
+    apart = np.abs(arc[pairs[:, 0]] - arc[pairs[:, 1]])
+    far = np.minimum(apart, step.sum() - apart) > along_mm
+    if not far.any():
+        return np.inf
+    return float(np.linalg.norm(p[pairs[far, 0]] - p[pairs[far, 1]], axis=1).min())
 
 
 def coarsened(polygon: np.ndarray, spacing: float, corner_deg: float = 30.0) -> np.ndarray:

@@ -75,6 +75,36 @@ def silent_plates_text(run_id: str, plates, noise=None) -> str:
                      f"nothing" for j, mean, std in plates)
 
 
+def narrow_necks(outlines, scene_toml: str) -> tuple[float, list[tuple[int, float]]]:
+    """Plates of a design with a neck or slot narrower than the scene's feature size —
+    ``[optimizer] min_feature_mm``, or half ``[capacitors] min_gap_mm`` when it sets none —
+    as ``(plate, width mm)``, and that feature size. Two points of an outline count when
+    they are farther apart along it than :data:`~mscap.design.objective.NECK_ARC` feature
+    sizes (docs/optimize.md, "Necks")."""
+    import tomllib
+
+    from mscap.design.objective import NECK_ARC
+    from mscap.geometry.polygons import narrowest_neck
+
+    try:
+        data = tomllib.loads(scene_toml)
+        feature = float(data.get("optimizer", {}).get("min_feature_mm", 0.0)) \
+            or 0.5 * float(data.get("capacitors", {}).get("min_gap_mm", 1.0))
+    except (tomllib.TOMLDecodeError, TypeError, ValueError, AttributeError):
+        return math.nan, []
+    if not feature > 0:
+        return feature, []
+    widths = [narrowest_neck(o, NECK_ARC * feature, feature) for o in outlines]
+    return feature, [(j, w) for j, w in enumerate(widths) if w < feature]
+
+
+def narrow_necks_text(run_id: str, necks, feature: float) -> str:
+    """One line per plate of the chosen run with a neck narrower than ``feature``."""
+    return "\n".join(f"  warning: plate {j} of {run_id} has a neck or slot {width:.3g} mm wide, narrower than "
+                     f"{feature:g} mm: a stencil may not cut it (set [optimizer] min_feature_mm; docs/optimize.md, "
+                     f"\"Necks\")" for j, width in necks)
+
+
 def _percent(x: float) -> str:
     return f"{100 * x:.2f} %" if math.isfinite(x) else "-"
 

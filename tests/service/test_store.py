@@ -277,6 +277,25 @@ def test_silent_plates_threshold_is_half_the_offset_noise():
     assert silent_plates(c[:1]) == [] and silent_plates(np.full((3, 2), np.nan)) == []
 
 
+def test_narrow_necks_name_the_plates_a_stencil_may_not_cut():
+    # The feature size is [optimizer] min_feature_mm, else half the min gap (1 mm here);
+    # a 0.3 mm slot cut 4 mm into a 5 mm square is a neck (its sides are > 2π mm apart
+    # along the outline); the square's corners, 0.3 mm apart only near a corner, are not.
+    from mscap.geometry import polygons
+    from mscap.service.report import narrow_necks, narrow_necks_text
+    from tests.design.test_objective import slotted_square
+
+    slot, square = slotted_square(0.3, spacing=0.1), polygons.square((20.0, 0.0), 5.0)
+    assert polygons.narrowest_neck(slot, 2 * np.pi, 1.0) == pytest.approx(0.3, rel=1e-9)
+    assert polygons.narrowest_neck(square, 2 * np.pi, 1.0) == np.inf
+    feature, necks = narrow_necks([square, slot], '[capacitors]\nmin_gap_mm = 2.0\n')
+    assert feature == 1.0 and len(necks) == 1 and necks[0][0] == 1 and necks[0][1] == pytest.approx(0.3)
+    assert "plate 1 of k2_s1 has a neck or slot 0.3 mm wide, narrower than 1 mm" in narrow_necks_text("k2_s1", necks,
+                                                                                                    feature)
+    assert narrow_necks([slot], '[optimizer]\nmin_feature_mm = 0.25\n') == (0.25, [])
+    assert narrow_necks([slot], "not toml ][") == (pytest.approx(float("nan"), nan_ok=True), [])
+
+
 def synthetic_store(path, scene, metrics: dict, failures=()):
     """Runs with a prescribed final metric per (k, seed): capacitances of poses on a line."""
     with open_store(path, scene, mpi_size=2) as store:
