@@ -136,29 +136,26 @@ class SeparationBarrier(Term):
         return (np.vstack(polygons), owner, start + (local + 1) % size,
                 start + (local - 1) % size, sizes)
 
-    def _necks(self, x, owner, nxt, p, e) -> np.ndarray:
-        """Which same-outline pairs ``(p, e)`` are a neck's: farther apart along the outline
-        (the shorter way round, to the nearer end of edge e) than ``NECK_ARC · feature_mm``."""
-        same = owner[p] == owner[e]
-        if self.feature_mm <= 0 or not same.any():
-            return np.zeros(len(p), dtype=bool)
+    @staticmethod
+    def _arc(x, owner, nxt):
+        """Arc length of each vertex from its polygon's first vertex, and its polygon's
+        perimeter (mm)."""
         step = np.linalg.norm(x[nxt] - x, axis=1)
-        arc = np.zeros(len(x))
-        perimeter = np.zeros(len(x))
-        for o in np.unique(owner[p[same]]):
-            members = np.flatnonzero(owner == o)
-            arc[members] = np.concatenate([[0.0], np.cumsum(step[members])[:-1]])
-            perimeter[members] = step[members].sum()
+        first = np.searchsorted(owner, owner)  # owners are sorted: each polygon's first vertex
+        total = np.cumsum(step) - step
+        return total - total[first], np.bincount(owner, weights=step)[owner]
 
-        def along(a, b):
-            gap = np.abs(arc[a] - arc[b])
-            return np.minimum(gap, perimeter[a] - gap)
-
-        return same & (np.minimum(along(p, e), along(p, nxt[e])) > NECK_ARC * self.feature_mm)
+    @staticmethod
+    def _along(arc, perimeter, a, b):
+        """Distance along the outline between vertices a and b of one polygon, the shorter way."""
+        gap = np.abs(arc[a] - arc[b])
+        return np.minimum(gap, perimeter[a] - gap)
 
     def _pairs(self, x, owner, nxt, prv, reach, same_outline, v=None, keep=0.0):
         """Vertex–edge pairs ``(p, e)`` (edge e runs from vertex e to ``nxt[e]``) that may
-        come within ``shift + reach``; pairs within one outline only if ``same_outline``.
+        come within ``shift + reach``, and which of them are a neck's (``feature_mm`` > 0:
+        one outline's, farther apart along it than ``NECK_ARC · feature_mm``); other pairs
+        within one outline only if ``same_outline``.
         Given velocities ``v``, also drop vertex pairs too far apart for their relative
         speed to close (1 − keep) of it: a pair (p, ab) is needed only if (1 − keep)(d − g)
         < L = ‖v_p − v_j‖ for the faster endpoint j, and d ≥ ‖x_p − x_j‖ − longest edge."""
@@ -180,10 +177,16 @@ class SeparationBarrier(Term):
         i, j = np.concatenate(found).T
         gap = np.full(len(i), base)
         own = longest + self.feature_mm  # an outline's own pairs: no gap, or a neck's
-        if same_outline or self.feature_mm > 0:  # the capacitors' own pairs (the sheet's own edges never enter)
+        necking = self.feature_mm > 0
+        if necking:
+            arc, perimeter = self._arc(x, owner, nxt)
+        if same_outline or necking:  # the capacitors' own pairs (the sheet's own edges never enter)
             radius = own + (reach if same_outline else self.feature_mm)
             si, sj = np.concatenate([members[o][trees[o].query_pairs(radius, output_type="ndarray")]
                                      for o in range(sheet)] + [np.empty((0, 2), dtype=np.intp)]).T
+            if not same_outline:  # only a neck's; a vertex is an end of each edge it pairs with below
+                far = self._along(arc, perimeter, si, sj) > NECK_ARC * self.feature_mm
+                si, sj = si[far], sj[far]
             i, j, gap = np.r_[i, si], np.r_[j, sj], np.r_[gap, np.full(len(si), own)]
         if v is not None:
             apart = np.linalg.norm(x[i] - x[j], axis=1) - gap
@@ -194,13 +197,16 @@ class SeparationBarrier(Term):
         on_sheet = np.flatnonzero(~cap)
         p = np.r_[p, np.repeat(np.flatnonzero(cap), len(on_sheet))]
         e = np.r_[e, np.tile(on_sheet, cap.sum())]
-        use = owner[p] != owner[e]
+        same = owner[p] == owner[e]
+        necks = np.zeros(len(p), dtype=bool)
+        if necking:  # farther apart along the outline than NECK_ARC feature sizes, to e's nearer end
+            ends = np.minimum(self._along(arc, perimeter, p, e), self._along(arc, perimeter, p, nxt[e]))
+            necks = same & (ends > NECK_ARC * self.feature_mm)
+        use = ~same | necks
         if same_outline:
-            use |= (owner[p] == owner[e]) & (p != e) & (p != nxt[e])
-        elif self.feature_mm > 0:
-            use |= self._necks(x, owner, nxt, p, e)
-        code = np.unique(p[use] * len(x) + e[use])
-        return code // len(x), code % len(x)
+            use |= same & (p != e) & (p != nxt[e])
+        code, index = np.unique(p[use] * len(x) + e[use], return_index=True)
+        return code // len(x), code % len(x), necks[use][index]
 
     def _shift(self, owner, p, e, necks):
         """The gap each pair must keep: ``gap_mm`` between capacitors, ``margin_mm`` to the
@@ -237,17 +243,15 @@ class SeparationBarrier(Term):
     def value(self, outlines) -> float:
         """B (mm²); ``inf`` when a minimum gap, margin or feature size is violated."""
         x, owner, nxt, prv, _ = self._stack(outlines)
-        p, e = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
+        p, e, necks = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
         d, _, _ = segment_projection(x[p], x[e], x[nxt[e]])
-        necks = self._necks(x, owner, nxt, p, e)
         return float(self._barrier(d - self._shift(owner, p, e, necks), necks).sum())
 
     def value_and_gradient(self, outlines):
         """B and a tuple of ``(m_i, 2)`` gradients (mm); raises GeometryError if infeasible."""
         x, owner, nxt, prv, sizes = self._stack(outlines)
-        p, e = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
+        p, e, necks = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
         d, t, r = segment_projection(x[p], x[e], x[nxt[e]])
-        necks = self._necks(x, owner, nxt, p, e)
         s = d - self._shift(owner, p, e, necks)
         self._violation(owner, p, e, s, necks)
         on = s < np.where(necks, self.feature_mm, self.dhat_mm)
@@ -279,10 +283,9 @@ class SeparationBarrier(Term):
         speed = np.linalg.norm(v, axis=1).max()
         if speed == 0:
             return 1.0
-        p, e = self._pairs(x, owner, nxt, prv, 2 * speed / (1 - keep), True, v, keep)
+        p, e, necks = self._pairs(x, owner, nxt, prv, 2 * speed / (1 - keep), True, v, keep)
         b = nxt[e]
         d, _, _ = segment_projection(x[p], x[e], x[b])
-        necks = self._necks(x, owner, nxt, p, e)
         shift = self._shift(owner, p, e, necks)
         self._violation(owner, p, e, d - shift, necks)
         target = shift + keep * (d - shift)
