@@ -139,13 +139,23 @@ def test_square_plate_fringing_decreases_under_refinement():
     assert factors[2][-1] < 1.025
 
 
-def strip_capacitance(order, level):
+def strip_capacitance(order, level, shape="tet"):
     """A plate edge in a strip (2D field in x–z): plate over x < 1 of a 2 mm × 0.25 mm
     sheet, layers 0.25 mm, refined uniformly in x and z (cell 0.25 / 2^level)."""
     per_layer = 2 ** level
     mesh2d = grid_trimesh(8 * per_layer, 1, 2.0, 0.25, lambda c: np.where(c[:, 0] < 1.0, 0, -1))
     mesh = extrude(mesh2d, (0.25,) * 5, per_layer)
-    return es.solve(es.build_problem(mesh, make_layers((0.25,) * 5), order)).capacitance_pF[0]
+    return es.solve(es.build_problem(mesh, make_layers((0.25,) * 5), order, shape)).capacitance_pF[0]
+
+
+def strip_convergence(order, shape="tet"):
+    """The strip's capacitances at four levels, their Richardson (Aitken) limit from the
+    three finest, and the observed rate."""
+    h = 0.25 / 2.0 ** np.arange(4)
+    c = np.array([strip_capacitance(order, level, shape) for level in range(4)])
+    d1, d2 = c[2] - c[1], c[3] - c[2]
+    reference = c[3] + d2 * d2 / (d1 - d2)
+    return c, reference, np.polyfit(np.log(h), np.log(c - reference), 1)[0]
 
 
 @ORDERS
@@ -154,13 +164,8 @@ def test_convergence_rate(order):
     # quasi-uniform meshes the energy (= C) error is O(h^(4/3)) for every element order
     # (measured: 1.39 for P1, 1.36 for P2). A rate above 1.1 leaves room for
     # pre-asymptotic effects; a wrong stiffness or a wrong Dirichlet set gives ~0.
-    h = 0.25 / 2.0 ** np.arange(4)
-    c = np.array([strip_capacitance(order, level) for level in range(4)])
+    c, reference, rate = strip_convergence(order)
     assert np.all(np.diff(c) < 0)  # upper bounds decreasing
-    # Richardson (Aitken) extrapolation from the three finest values: limit and rate.
-    d1, d2 = c[2] - c[1], c[3] - c[2]
-    reference = c[3] + d2 * d2 / (d1 - d2)
-    rate = np.polyfit(np.log(h), np.log(c - reference), 1)[0]
     assert 1.1 < rate < 2.0, (rate, c)
     if order == 2:  # same meshes, larger space: a smaller error
         p1 = np.array([strip_capacitance(1, level) for level in range(4)])
@@ -250,15 +255,20 @@ def test_blockwise_assembly_equals_one_shot_assembly(two_plates, order, monkeypa
         reference = data
 
 
-def test_taylor_remainder_is_second_order(problems, two_plates):
-    problem = problems[2]
-    x = perturbed(two_plates)
+def capacitance_taylor(problem, mesh):
+    """Taylor test of ``w · C`` at a perturbed configuration of ``mesh`` along a random
+    direction, with ``capacitance_vjp`` as the gradient."""
+    x = perturbed(mesh)
     caps = es.solve(problem, x)
     w = np.array([1.0, 0.5])
     grad = es.capacitance_vjp(problem, caps, w, x)
     direction = np.random.default_rng(3).normal(scale=0.004, size=x.shape)
-    taylor = taylor_test(lambda y: w @ es.solve(problem, y).capacitance_pF, x, direction, grad,
-                         value=w @ caps.capacitance_pF, h0=1.0, halvings=3)
+    return taylor_test(lambda y: w @ es.solve(problem, y).capacitance_pF, x, direction, grad,
+                       value=w @ caps.capacitance_pF, h0=1.0, halvings=3)
+
+
+def test_taylor_remainder_is_second_order(problems, two_plates):
+    taylor = capacitance_taylor(problems[2], two_plates)
     assert np.all(taylor.rates > 1.8), taylor
 
 

@@ -10,15 +10,9 @@ import scipy.sparse as sp
 from mscap.fem import electrostatic as es, wedge
 from mscap.mesh.layered import extrude, prisms_of
 from mscap.scene.settings import EPSILON0_PF_PER_MM, Material
-from mscap.testing import taylor_test
 from tests.conftest import grid_trimesh
-from tests.fem.test_electrostatic import CLEAR, STACK_MM, make_layers, perturbed, plate_mesh
-
-
-@pytest.fixture(scope="module")
-def two_plates():
-    """Two 4 mm plates 1 mm apart on a 12 × 8 mm sheet (822 vertices)."""
-    return plate_mesh((12.0, 8.0), [(3.5, 4.0), (8.5, 4.0)], 4.0, 0.8)
+from tests.fem.test_electrostatic import (CLEAR, capacitance_taylor, make_layers, perturbed, plate_mesh,
+                                         strip_convergence, two_plates)  # noqa: F401 (a fixture)
 
 
 @pytest.fixture(scope="module")
@@ -114,31 +108,13 @@ def test_prisms_err_a_third_of_the_tets_on_the_same_mesh():
 
 def test_convergence_rate():
     # The strip of test_electrostatic.py: the plate edge's r^(2/3) caps the rate at 4/3.
-    from tests.fem.test_electrostatic import grid_trimesh as grid
-
-    def strip(level):
-        per_layer = 2 ** level
-        mesh = extrude(grid(8 * per_layer, 1, 2.0, 0.25, lambda c: np.where(c[:, 0] < 1.0, 0, -1)), (0.25,) * 5,
-                       per_layer)
-        return es.solve(es.build_problem(mesh, make_layers((0.25,) * 5), 1, "prism")).capacitance_pF[0]
-
-    h = 0.25 / 2.0 ** np.arange(4)
-    c = np.array([strip(level) for level in range(4)])
+    c, _, rate = strip_convergence(1, "prism")
     assert np.all(np.diff(c) < 0)
-    d1, d2 = c[2] - c[1], c[3] - c[2]
-    reference = c[3] + d2 * d2 / (d1 - d2)
-    rate = np.polyfit(np.log(h), np.log(c - reference), 1)[0]
     assert 1.1 < rate < 2.0, (rate, c)
 
 
 def test_taylor_remainder_is_second_order(problem, two_plates):
-    x = perturbed(two_plates)
-    caps = es.solve(problem, x)
-    w = np.array([1.0, 0.5])
-    grad = es.capacitance_vjp(problem, caps, w, x)
-    direction = np.random.default_rng(3).normal(scale=0.004, size=x.shape)
-    taylor = taylor_test(lambda y: w @ es.solve(problem, y).capacitance_pF, x, direction, grad,
-                         value=w @ caps.capacitance_pF, h0=1.0, halvings=3)
+    taylor = capacitance_taylor(problem, two_plates)
     assert np.all(taylor.rates > 1.9), taylor
 
 
