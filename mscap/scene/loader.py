@@ -26,8 +26,8 @@ from mscap.scene import sizing
 from mscap.scene._toml import Table
 from mscap.scene.calibration import CalibrationSettings, read_calibration
 from mscap.scene.poses import read_pose
-from mscap.scene.settings import (BALL_EDGE_RATIO, DEFAULT_FAMILY_COUNT, DESIGN_POSES, DISTANCES, ELASTIC_MESHES,
-                                  HESSIAN_MODES, LAYER_KINDS, LAYER_THICKNESS_MM, MAX_CAPACITORS, MAX_CASCADE_LEVELS,
+from mscap.scene.settings import (BALL_EDGE_RATIO, DEFAULT_FAMILY_COUNT, DEFAULT_MIN_GAP_MM, DESIGN_POSES, DISTANCES,
+                                  ELASTIC_MESHES, HESSIAN_MODES, LAYER_KINDS, LAYER_THICKNESS_MM, MAX_CAPACITORS, MAX_CASCADE_LEVELS,
                                   MAX_CUTS, MAX_ITERATIONS, MAX_LENGTH_MM, MAX_NAME_LENGTH, MAX_OUTLINE_VERTICES,
                                   MAX_RELATIVE_PERMITTIVITY, MAX_SCENE_BYTES, MAX_SEED, MAX_SLABS, MAX_STARTS_PER_K,
                                   MIN_LENGTH_MM, PETSC_TYPES, POSE_KINDS, POSE_NAME_PATTERN, SKINNING_METHODS,
@@ -286,7 +286,7 @@ def _elastic_for_signal(mesh: MeshSettings, elastic: ElasticSettings, poses, giv
 
 
 def _read_capacitors(t: Table, sheet: np.ndarray, mesh: MeshSettings) -> tuple[Layout, float]:
-    min_gap = t.get("min_gap_mm", float, 1.0, minimum=0.0, maximum=MAX_LENGTH_MM)
+    min_gap = t.get("min_gap_mm", float, DEFAULT_MIN_GAP_MM, minimum=0.0, maximum=MAX_LENGTH_MM)
     if t.has("outlines_mm") == t.has("grid"):
         raise t.error("outlines_mm", "give exactly one of 'outlines_mm' (explicit polygons) "
                       "or a [capacitors.grid] table")

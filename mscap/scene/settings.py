@@ -61,6 +61,8 @@ MAX_SCENE_BYTES = 16 * 2**20
 MAX_LENGTH_MM = 10_000.0
 #: Mesh edges and other lengths from below: 1 µm, thinner than any cast silicone film.
 MIN_LENGTH_MM = 1e-3
+#: ``[capacitors] min_gap_mm`` when a scene gives none.
+DEFAULT_MIN_GAP_MM = 1.0
 #: A layer of a stretchable sheet, 1 µm to 10 mm: thicker is a block, which one slab per
 #: layer cannot bend.
 LAYER_THICKNESS_MM = (1e-3, 10.0)

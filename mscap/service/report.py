@@ -85,11 +85,12 @@ def narrow_necks(outlines, scene_toml: str) -> tuple[float, list[tuple[int, floa
 
     from mscap.design.objective import NECK_ARC
     from mscap.geometry.polygons import narrowest_neck
+    from mscap.scene.settings import DEFAULT_MIN_GAP_MM, OptimizerSettings
 
     try:
         data = tomllib.loads(scene_toml)
-        feature = float(data.get("optimizer", {}).get("min_feature_mm", 0.0)) \
-            or 0.5 * float(data.get("capacitors", {}).get("min_gap_mm", 1.0))
+        feature = float(data.get("optimizer", {}).get("min_feature_mm", OptimizerSettings.min_feature_mm)) \
+            or 0.5 * float(data.get("capacitors", {}).get("min_gap_mm", DEFAULT_MIN_GAP_MM))
     except (tomllib.TOMLDecodeError, TypeError, ValueError, AttributeError):
         return math.nan, []
     if not feature > 0:
