@@ -26,13 +26,13 @@ from mscap.scene import sizing
 from mscap.scene._toml import Table
 from mscap.scene.calibration import CalibrationSettings, read_calibration
 from mscap.scene.poses import read_pose
-from mscap.scene.settings import (BALL_EDGE_RATIO, DEFAULT_FAMILY_COUNT, DEFAULT_MIN_GAP_MM, DESIGN_POSES, DISTANCES,
-                                  ELASTIC_MESHES, HESSIAN_MODES, LAYER_KINDS, LAYER_THICKNESS_MM, MAX_CAPACITORS,
-                                  MAX_CASCADE_LEVELS, MAX_CUTS, MAX_ITERATIONS, MAX_LENGTH_MM, MAX_NAME_LENGTH, MAX_OUTLINE_VERTICES,
-                                  MAX_RELATIVE_PERMITTIVITY, MAX_SCENE_BYTES, MAX_SEED, MAX_SLABS, MAX_STARTS_PER_K,
-                                  MIN_LENGTH_MM, PETSC_TYPES, POSE_KINDS, POSE_NAME_PATTERN, SKINNING_METHODS,
-                                  YOUNGS_MODULUS_MPA, ElasticSettings, Layer, Material, MeshSettings,
-                                  MultistartSettings, OptimizerSettings, Scene, auto_slabs)
+from mscap.scene.settings import (BALL_EDGE_RATIO, DEFAULT_FAMILY_COUNT, DEFAULT_MIN_GAP_MM, DESIGN_POSES,
+                                  DISTANCES, ELASTIC_MESHES, HESSIAN_MODES, LAYER_KINDS, LAYER_THICKNESS_MM,
+                                  MAX_CAPACITORS, MAX_CASCADE_LEVELS, MAX_CUTS, MAX_ITERATIONS, MAX_LENGTH_MM,
+                                  MAX_NAME_LENGTH, MAX_OUTLINE_VERTICES, MAX_RELATIVE_PERMITTIVITY, MAX_SCENE_BYTES,
+                                  MAX_SEED, MAX_SLABS, MAX_STARTS_PER_K, MIN_LENGTH_MM, PETSC_TYPES, POSE_KINDS,
+                                  POSE_NAME_PATTERN, SKINNING_METHODS, YOUNGS_MODULUS_MPA, ElasticSettings, Layer,
+                                  Material, MeshSettings, MultistartSettings, OptimizerSettings, Scene, auto_slabs)
 
 __all__ = ["load_scene", "check_optimizer", "check_multistart", "check_designable", "family_grid_counts",
            "read_multistart", "select_poses", "with_overrides"]
