@@ -19,14 +19,16 @@ def add_parser(sub) -> None:
     what = p.add_mutually_exclusive_group()
     what.add_argument("--json", action="store_true", help="print JSON for scripts")
     what.add_argument("--runs", action="store_true",
-                      help="print every run: metric, its finer-mesh value and error estimate, wall times")
+                      help="print every run: metric, its finer-mesh value and error estimate, wall times, "
+                           "CPU seconds and peak memory")
     what.add_argument("--run", dest="run_id", metavar="ID", help="print one run's attributes and history")
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
-    from mscap.service.report import (error_estimates, history_text, narrow_necks, narrow_necks_text, runs_table,
-                                      silent_plates, silent_plates_text, summary_json, table)
+    from mscap.service.report import (cost, cost_text, error_estimates, history_text, narrow_necks,
+                                      narrow_necks_text, runs_table, silent_plates, silent_plates_text, summary_json,
+                                      table)
     from mscap.service.store import finished_ids, read_run, read_store, store_selection
 
     with read_store(args.results) as store:
@@ -47,10 +49,12 @@ def run(args) -> int:
             document = summary_json(selection, errors)
             document["silent_plates"] = [{"plate": j, "mean_pF": m, "std_pF": sd} for j, m, sd in silent]
             document["narrow_necks"] = [{"plate": j, "width_mm": w, "feature_mm": feature} for j, w in necks]
+            document["cost"] = cost(store).as_dict()
             print(json.dumps(document, indent=1))
         else:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
                                    f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors))
+            print(cost_text(cost(store)))
             if silent:
                 print(silent_plates_text(selection.chosen_run, silent))
             if necks:

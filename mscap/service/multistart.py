@@ -53,6 +53,7 @@ from mscap.service.pruning import Envelope, PruneRule, Rungs, Verdict, history_v
 from mscap.service.selection import StartConfig, configurations, rank_key, repeated_starts, run_score, select
 from mscap.service.store import failed_record, finished_ids, open_store, read_run, record_from_result, \
     run_summaries, run_summary, write_run, write_selection
+from mscap.service.usage import Meter
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -100,7 +101,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     from mscap.design.optimizer import optimize
 
     release_freed_memory()  # what the previous start on this worker freed
-    start = time.perf_counter()
+    start, meter = time.perf_counter(), Meter()
     layout = None
     try:
         layout = initial_layout(scene, config.k, config.seed, config.init)
@@ -121,8 +122,8 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         del design  # optimize() holds the only reference: the first remesh frees the design
         result = optimize(handed.pop(), max_iterations=max_iterations,
                           checkpoint=checkpoint if ask is not None else None)
-        record = record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
-                                    time.perf_counter() - start, rank)
+        record = replace(record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
+                                            time.perf_counter() - start, rank), cpu_s=meter.cpu_s)
         if result.reason == "pruned":
             record = replace(record, status="pruned", reason=verdicts[-1].reason(rule))
         bound = ReconstructionBound.of(scene)
@@ -136,11 +137,12 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         release_freed_memory()
     except Exception as exc:  # a failed start is a result, not a crash of the job
         log.debug("start %s failed:\n%s", config.id, traceback.format_exc())
-        return failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
-                             time.perf_counter() - start, rank, layout, getattr(exc, "history", ()))
-    if not scene.multistart.error_estimate or record.pruned:
-        return record
-    return _with_check(scene, record, final, equilibria, bound, ask)
+        return replace(failed_record(config.k, config.seed, config.init, f"{type(exc).__name__}: {exc}",
+                                     time.perf_counter() - start, rank, layout, getattr(exc, "history", ())),
+                       cpu_s=meter.cpu_s, peak_rss_mb=meter.peak_rss_mb)
+    if scene.multistart.error_estimate and not record.pruned:
+        record = _with_check(scene, record, final, equilibria, bound, ask)
+    return replace(record, peak_rss_mb=meter.peak_rss_mb)  # the start's and its check's
 
 
 def _with_check(scene: Scene, record, final, equilibria, bound, ask):
@@ -155,15 +157,17 @@ def _with_check(scene: Scene, record, final, equilibria, bound, ask):
         if beaten is not None:
             log.info("start %s: no finer-mesh check, %s of its k is better", record.id, beaten)
             return record
+    cpu = time.process_time()
     try:
         check = estimate_error(scene, final, record.final_capacitance_pF, equilibria)
     except Exception as exc:  # the run stands; only its accuracy is unknown
         log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
                     record.id, type(exc).__name__, exc)
-        return record
+        return replace(record, error_estimate_cpu_s=time.process_time() - cpu)
     # The bound of the same design on the finer mesh: the read-back scenes' k is checked on it
     # as the others' is on the finer min L1 (mscap.service.selection).
     return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s,
+                   error_estimate_cpu_s=time.process_time() - cpu,
                    finer_bound_mm=math.nan if bound is None else bound.value(check.capacitance_pF))
 
 
@@ -188,9 +192,14 @@ def run_check(scene: Scene, record, ask: Callable | None = None):
     from mscap.geometry.layout import Layout
     from mscap.scene.sizing import with_layout
 
+    release_freed_memory()
+    meter = Meter()
     start_scene = design_scene(with_layout(scene, initial_layout(scene, record.k, record.seed, record.init)))
-    return _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None,
-                       ReconstructionBound.of(start_scene), ask)
+    checked = _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None,
+                          ReconstructionBound.of(start_scene), ask)
+    # The larger of the run's peak (an earlier session's; NaN if not stored) and the check's here.
+    peak = meter.peak_rss_mb if not record.peak_rss_mb > meter.peak_rss_mb else record.peak_rss_mb
+    return replace(checked, peak_rss_mb=peak)
 
 
 def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retry_failed: bool = False,

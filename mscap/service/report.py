@@ -5,6 +5,7 @@ history. Accuracy is the run's finer-mesh error estimate (:mod:`mscap.service.ac
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -12,7 +13,7 @@ from mscap.scene.calibration import NoiseModel
 from mscap.service.store import HISTORY_COLUMNS, finished_ids
 
 __all__ = ["error_estimates", "summary_json", "table", "runs_table", "history_text", "silent_plates",
-           "silent_plates_text"]
+           "silent_plates_text", "Cost", "cost", "cost_text"]
 
 #: A plate whose read-out varies over the design poses by less than this fraction of the
 #: per-reading offset noise (appendix A: ±2 pF uniform, σ = 1.15 pF) tells them nothing,
@@ -24,6 +25,57 @@ def error_estimates(store) -> dict[str, float]:
     """The finer-mesh error estimate of every finished run of an open results file (NaN:
     schema 1 files, failed runs)."""
     return {rid: float(store["runs"][rid].attrs.get("error_estimate", math.nan)) for rid in finished_ids(store)}
+
+
+@dataclass(frozen=True)
+class Cost:
+    """What a results file's runs cost their workers (:mod:`mscap.service.usage`): CPU
+    seconds of the runs and of their finer-mesh checks, the largest peak resident memory
+    of a worker and its run, and how many runs carry these numbers (runs stored before
+    mscap recorded them carry none)."""
+
+    runs: int
+    measured: int
+    run_cpu_s: float
+    check_cpu_s: float
+    peak_rss_mb: float
+    peak_run: str
+
+    @property
+    def core_hours(self) -> float:
+        return (self.run_cpu_s + self.check_cpu_s) / 3600.0
+
+    def as_dict(self) -> dict:
+        return {"runs": self.runs, "runs_measured": self.measured, "run_cpu_s": self.run_cpu_s,
+                "check_cpu_s": self.check_cpu_s, "core_hours": self.core_hours,
+                "peak_rss_mb": _finite_or_none(self.peak_rss_mb), "peak_run": self.peak_run or None}
+
+
+def cost(store) -> Cost:
+    """The :class:`Cost` of every finished run of an open results file (attributes only)."""
+    runs = store["runs"]
+    rows = [(rid, runs[rid].attrs) for rid in sorted(finished_ids(store))]
+    cpu = [(rid, float(a.get("cpu_s", math.nan)), float(a.get("error_estimate_cpu_s", math.nan)),
+            float(a.get("peak_rss_mb", math.nan))) for rid, a in rows]
+    measured = [row for row in cpu if math.isfinite(row[1])]
+    peaks = [(peak, rid) for rid, _, _, peak in cpu if math.isfinite(peak)]
+    peak, peak_run = max(peaks) if peaks else (math.nan, "")
+    return Cost(runs=len(rows), measured=len(measured), run_cpu_s=sum(r[1] for r in measured),
+                check_cpu_s=sum(r[2] for r in measured if math.isfinite(r[2])), peak_rss_mb=peak, peak_run=peak_run)
+
+
+def cost_text(c: Cost) -> str:
+    """One line: the core-hours of the runs that carry them and the largest worker."""
+    if not c.measured:
+        return (f"cost: no CPU time stored ({c.runs} run{'s' * (c.runs != 1)}, written before mscap "
+                f"recorded it)")
+    line = (f"cost: {c.core_hours:.3g} core-hours of CPU (runs {c.run_cpu_s / 3600:.3g}, finer-mesh checks "
+            f"{c.check_cpu_s / 3600:.3g}) over {c.measured} run{'s' * (c.measured != 1)}")
+    if c.measured < c.runs:
+        line += f" ({c.runs - c.measured} more stored before mscap recorded CPU time)"
+    if math.isfinite(c.peak_rss_mb):
+        line += f"; largest worker peak {c.peak_rss_mb:.0f} MB (run {c.peak_run})"
+    return line
 
 
 def _error(errors: dict | None, rid) -> float:
@@ -145,7 +197,7 @@ def runs_table(records) -> str:
     the error estimates of C and of the pose-to-pose distances, the run's wall time and
     the check's."""
     lines = [f"{'run':<20} {'status':<6} {'its':>4} {'bound (mm)':>15} {'min L1 (pF)':>12} {'finer (pF)':>11} "
-             f"{'error C':>8} {'signal':>8} {'time (s)':>9} {'check (s)':>9}"]
+             f"{'error C':>8} {'signal':>8} {'time (s)':>9} {'check (s)':>9} {'CPU (s)':>9} {'peak (MB)':>9}"]
     for r in records:
         def number(x, fmt):
             return format(x, fmt) if math.isfinite(x) else "-"
@@ -153,7 +205,9 @@ def runs_table(records) -> str:
         lines.append(f"{r.id:<20} {r.status:<6} {r.iterations:>4} {bound:>15} {number(r.metric, '.6g'):>12} "
                      f"{number(r.finer_metric_pF, '.6g'):>11} {_percent(r.error_estimate):>8} "
                      f"{_percent(r.signal_error):>8} {r.wall_s:>9.1f} "
-                     f"{number(r.error_estimate_wall_s, '.1f'):>9}")
+                     f"{number(r.error_estimate_wall_s, '.1f'):>9} "
+                     f"{number(r.cpu_s + (r.error_estimate_cpu_s if r.checked else 0.0), '.1f'):>9} "
+                     f"{number(r.peak_rss_mb, '.0f'):>9}")
     return "\n".join(lines)
 
 
@@ -162,6 +216,12 @@ def history_text(record) -> str:
     lines = [f"run {record.id}: k = {record.k}, seed {record.seed}, init {record.init}, status {record.status}, "
              f"rank {record.rank}, {record.wall_s:.1f} s, {record.iterations} iterations"
              + (f" ({record.reason})" if record.reason else "")]
+    if math.isfinite(record.cpu_s):
+        lines.append(f"cost on its worker: {record.cpu_s:.1f} CPU-s"
+                     + (f" + {record.error_estimate_cpu_s:.1f} for the finer-mesh check"
+                        if math.isfinite(record.error_estimate_cpu_s) else "")
+                     + (f", peak resident memory {record.peak_rss_mb:.0f} MB" if math.isfinite(record.peak_rss_mb)
+                        else ""))
     if not record.ok:
         lines.append(f"error: {record.error}")
     if math.isfinite(record.metric):

@@ -60,6 +60,11 @@ RUN_ATTRS = {
                                 "beaten within its k, unless `check_all_runs`)"),
     "finer_metric_pF": ("float", "metric_pF of the final design on that finer mesh (NaN if not checked)"),
     "error_estimate_wall_s": ("float", "wall time of that check (s), not part of wall_s (NaN if not checked)"),
+    "cpu_s": ("float", "CPU seconds of the run on its worker, every thread (core-seconds; mscap.service.usage; "
+                       "NaN in files written before it was stored)"),
+    "error_estimate_cpu_s": ("float", "CPU seconds of the finer-mesh check (NaN if not checked, or not stored)"),
+    "peak_rss_mb": ("float", "peak resident memory of the worker during the run and its check (MB; the "
+                             "worker's peak so far where the kernel cannot reset it; NaN if not stored)"),
     "bound_mm": ("float", "final read-back bound: soft max over the design family's grid of the Cramér–Rao "
                           "bound on the RMS per-vertex error (mm, mscap.design.readback; NaN without a design family)"),
     "initial_bound_mm": ("float", "the same for the initial layout (mm; NaN without a design family)"),
@@ -154,6 +159,9 @@ class RunRecord:
     history: dict = field(default_factory=_empty_history)
     finer_capacitance_pF: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     error_estimate_wall_s: float = math.nan
+    cpu_s: float = math.nan
+    error_estimate_cpu_s: float = math.nan
+    peak_rss_mb: float = math.nan
     bound_mm: float = math.nan
     initial_bound_mm: float = math.nan
     finer_bound_mm: float = math.nan

@@ -317,7 +317,9 @@ def write_run(store: ResultsFile, record: RunRecord) -> str:
               "error": record.error, "reason": record.reason, "wall_s": float(record.wall_s),
               "iterations": int(record.iterations), "rank": int(record.rank), "metric_pF": record.metric,
               "error_estimate": float(record.error_estimate), "finer_metric_pF": float(record.finer_metric_pF),
-              "error_estimate_wall_s": float(record.error_estimate_wall_s), "bound_mm": float(record.bound_mm),
+              "error_estimate_wall_s": float(record.error_estimate_wall_s), "cpu_s": float(record.cpu_s),
+              "error_estimate_cpu_s": float(record.error_estimate_cpu_s),
+              "peak_rss_mb": float(record.peak_rss_mb), "bound_mm": float(record.bound_mm),
               "initial_bound_mm": float(record.initial_bound_mm), "finer_bound_mm": float(record.finer_bound_mm)}
     assert set(values) == set(RUN_ATTRS)
     k = int(record.k)
@@ -379,6 +381,9 @@ def _read_run(g: h5py.Group) -> RunRecord:
                      finer_capacitance_pF=g["finer_capacitance_pF"][()] if "finer_capacitance_pF" in g
                      else np.zeros((0, int(a["k"]))),
                      error_estimate_wall_s=float(a.get("error_estimate_wall_s", math.nan)),
+                     cpu_s=float(a.get("cpu_s", math.nan)),
+                     error_estimate_cpu_s=float(a.get("error_estimate_cpu_s", math.nan)),
+                     peak_rss_mb=float(a.get("peak_rss_mb", math.nan)),
                      bound_mm=float(a.get("bound_mm", math.nan)),
                      initial_bound_mm=float(a.get("initial_bound_mm", math.nan)),
                      finer_bound_mm=float(a.get("finer_bound_mm", math.nan)))

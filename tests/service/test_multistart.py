@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import os
 import re
 import shutil
@@ -85,6 +86,18 @@ def test_three_ranks_write_a_complete_file(three_ranks, capsys):
     assert main(["inspect", str(out), "--runs"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split()[:3] == ["run", "status", "its"] and len(lines) == 5 and "%" in lines[1]
+    # Every run carries its worker's CPU seconds and peak memory (mscap.service.usage): a
+    # worker computes, so its CPU is most of its wall on a core of its own, and at most
+    # the machine's cores' worth; its peak holds the mesh and the solvers, far below 1 GB.
+    cost = table["cost"]
+    assert cost["runs"] == cost["runs_measured"] == 4 and cost["check_cpu_s"] > 0
+    with read_store(out) as store:
+        runs = [read_run(store, rid) for rid in finished_ids(store)]
+    for r in runs:
+        assert 0.1 * r.wall_s < r.cpu_s < (os.cpu_count() or 1) * r.wall_s + 0.5, r.id
+        assert 30 < r.peak_rss_mb < 1000, r.id
+        assert r.checked == math.isfinite(r.error_estimate_cpu_s)
+    assert cost["peak_rss_mb"] == max(r.peak_rss_mb for r in runs)
 
 
 @needs_mpirun
