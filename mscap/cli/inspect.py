@@ -27,8 +27,8 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from mscap.service.report import (cost, cost_text, error_estimates, history_text, narrow_necks,
-                                      narrow_necks_text, runs_table, silent_plates, silent_plates_text, summary_json,
-                                      table)
+                                      narrow_necks_text, reading_plates, reading_text, runs_table, silent_plates,
+                                      silent_plates_text, summary_json, table)
     from mscap.service.store import finished_ids, read_run, read_store, store_selection
 
     with read_store(args.results) as store:
@@ -41,22 +41,26 @@ def run(args) -> int:
         selection = store_selection(store)
         errors = error_estimates(store)
         silent, necks, feature = [], [], 0.0
+        # How many plates of each k's best design read its poses (a silent plate tells them nothing).
+        readings = {s.best_run: reading_plates(read_run(store, s.best_run).final_capacitance_pF)
+                    for s in selection.per_k if s.best_run is not None}
         if selection.chosen_run is not None:
             chosen = read_run(store, selection.chosen_run)
             silent = silent_plates(chosen.final_capacitance_pF)
             feature, necks = narrow_necks(chosen.final_outlines, str(store.attrs.get("scene_toml", "")))
         if args.json:
-            document = summary_json(selection, errors)
+            document = summary_json(selection, errors, readings)
             document["silent_plates"] = [{"plate": j, "mean_pF": m, "std_pF": sd} for j, m, sd in silent]
             document["narrow_necks"] = [{"plate": j, "width_mm": w, "feature_mm": feature} for j, w in necks]
             document["cost"] = cost(store).as_dict()
             print(json.dumps(document, indent=1))
         else:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
-                                   f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors))
+                                   f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors, readings))
             print(cost_text(cost(store)))
             if silent:
                 print(silent_plates_text(selection.chosen_run, silent))
+                print(reading_text(selection, readings))
             if necks:
                 print(narrow_necks_text(selection.chosen_run, necks, feature))
     return 0

@@ -13,7 +13,7 @@ from mscap.scene.calibration import NoiseModel
 from mscap.service.store import HISTORY_COLUMNS, finished_ids
 
 __all__ = ["error_estimates", "summary_json", "table", "runs_table", "history_text", "silent_plates",
-           "silent_plates_text", "Cost", "cost", "cost_text"]
+           "silent_plates_text", "Reading", "reading_plates", "reading_text", "Cost", "cost", "cost_text"]
 
 #: A plate whose read-out varies over the design poses by less than this fraction of the
 #: per-reading offset noise (appendix A: ±2 pF uniform, σ = 1.15 pF) tells them nothing,
@@ -87,13 +87,15 @@ def _finite_or_none(x: float):
     return x if math.isfinite(x) else None
 
 
-def summary_json(selection, errors: dict | None = None) -> dict:
+def summary_json(selection, errors: dict | None = None, readings: dict | None = None) -> dict:
     """The ``--json`` document of a ``Selection``; ``errors`` maps run ids to their
-    finer-mesh error estimates."""
+    finer-mesh error estimates, ``readings`` the per-k best runs to their :class:`Reading`."""
     return {"per_k": [{"k": s.k, "runs_ok": s.runs_ok, "runs_pruned": s.runs_pruned, "runs_failed": s.runs_failed,
                        "best_metric": s.best_metric, "best_run": s.best_run, "wall_s": s.wall_s,
                        "best_error_estimate": _finite_or_none(_error(errors, s.best_run)),
-                       "best_bound_mm": s.best_bound_mm}
+                       "best_bound_mm": s.best_bound_mm,
+                       "best_reading_plates": None if s.best_run not in (readings or {})
+                       else readings[s.best_run].plates}
                       for s in selection.per_k],
             "by_bound": selection.by_bound,
             "chosen_k": selection.chosen_k, "chosen_run": selection.chosen_run,
@@ -117,6 +119,53 @@ def silent_plates(capacitance_pF, noise=None) -> list[tuple[int, float, float]]:
         return []
     spread = c.std(axis=0)
     return [(int(j), float(c[:, j].mean()), float(spread[j])) for j in np.flatnonzero(spread < SILENT_FRACTION * sigma)]
+
+
+@dataclass(frozen=True)
+class Reading:
+    """Which plates of a design read its poses: the ``k`` plates less the silent ones
+    (:func:`silent_plates`), and the min pairwise L1 distance over those alone (pF)."""
+
+    k: int
+    silent: tuple[int, ...]
+    metric_pF: float
+
+    @property
+    def plates(self) -> int:
+        return self.k - len(self.silent)
+
+
+def reading_plates(capacitance_pF, noise=None) -> Reading:
+    """The :class:`Reading` of a design's ``(n_poses, k)`` capacitances over its design poses."""
+    from mscap.design.history import min_pairwise_l1
+
+    c = np.asarray(capacitance_pF, dtype=float)
+    silent = tuple(j for j, _, _ in silent_plates(c, noise))
+    keep = [j for j in range(c.shape[1]) if j not in silent]
+    metric = min_pairwise_l1(c[:, keep]) if keep and len(c) > 1 else math.nan
+    return Reading(k=int(c.shape[1]), silent=silent, metric_pF=float(metric))
+
+
+def _reads(reading: Reading | None) -> str:
+    """``plates/k`` of a :class:`Reading`, ``-`` without one."""
+    return "-" if reading is None else f"{reading.plates}/{reading.k}"
+
+
+def reading_text(selection, readings: dict) -> str:
+    """A line when the chosen k's best design has silent plates: as a sensor it has fewer
+    plates, and its min L1 over them against the best of that smaller k (empty otherwise).
+    ``readings`` maps the per-k best runs to their :class:`Reading`."""
+    chosen = readings.get(selection.chosen_run)
+    if chosen is None or not chosen.silent:
+        return ""
+    n = chosen.plates
+    line = (f"  k = {selection.chosen_k}'s best design reads on {n} of its {chosen.k} plates: without plate"
+            f"{'s' * (len(chosen.silent) > 1)} {', '.join(map(str, chosen.silent))} its min L1 is "
+            f"{chosen.metric_pF:.4g} pF")
+    smaller = next((s for s in selection.per_k if s.k == n and s.best_metric is not None), None)
+    if smaller is not None:
+        line += f", k = {n}'s best {smaller.best_metric:.4g} pF"
+    return line + f": as a sensor it is a {n}-plate design"
 
 
 def silent_plates_text(run_id: str, plates, noise=None) -> str:
@@ -162,15 +211,19 @@ def _percent(x: float) -> str:
     return f"{100 * x:.2f} %" if math.isfinite(x) else "-"
 
 
-def table(selection, title: str = "", errors: dict | None = None) -> str:
+def table(selection, title: str = "", errors: dict | None = None, readings: dict | None = None) -> str:
     """The per-k table; ``*`` marks the chosen k. ``error`` is the best run's finer-mesh
-    error estimate, ``time`` the summed wall time of the k's runs."""
+    error estimate, ``time`` the summed wall time of the k's runs, ``reads`` (with
+    ``readings``, best run → :class:`Reading`) how many of the best design's plates read
+    its poses."""
     lines = [title] if title else []
+    readings = readings or {}
+
     bound = selection.by_bound  # runs designed for read-back: best = smallest bound
     pruned = any(s.runs_pruned for s in selection.per_k)  # a column only when a rule pruned
     lines.append(f"{'':1} {'k':>3} {'ok':>4} " + (f"{'pruned':>6} " if pruned else "") + f"{'failed':>6} "
                  + (f"{'best bound (mm)':>16} {'min L1 (pF)':>12}" if bound else f"{'best min L1 (pF)':>17}")
-                 + f" {'best run':<20} {'error':>8} {'time (s)':>9}")
+                 + f" {'best run':<20} {'error':>8} {'time (s)':>9}" + (f" {'reads':>5}" if readings else ""))
     for s in selection.per_k:
         mark = "*" if s.k == selection.chosen_k else " "
         metric = "-" if s.best_metric is None else f"{s.best_metric:.6g}"
@@ -178,7 +231,8 @@ def table(selection, title: str = "", errors: dict | None = None) -> str:
                  if bound else f"{metric:>17}")
         lines.append(f"{mark} {s.k:>3} {s.runs_ok:>4} " + (f"{s.runs_pruned:>6} " if pruned else "")
                      + f"{s.runs_failed:>6} {score} "
-                     f"{s.best_run or '-':<20} {_percent(_error(errors, s.best_run)):>8} {s.wall_s:>9.1f}")
+                     f"{s.best_run or '-':<20} {_percent(_error(errors, s.best_run)):>8} {s.wall_s:>9.1f}"
+                     + (f" {_reads(readings.get(s.best_run)):>5}" if readings else ""))
     if selection.chosen_k is None:
         lines.append("no successful run: no k chosen")
     else:
@@ -197,7 +251,8 @@ def runs_table(records) -> str:
     the error estimates of C and of the pose-to-pose distances, the run's wall time and
     the check's."""
     lines = [f"{'run':<20} {'status':<6} {'its':>4} {'bound (mm)':>15} {'min L1 (pF)':>12} {'finer (pF)':>11} "
-             f"{'error C':>8} {'signal':>8} {'time (s)':>9} {'check (s)':>9} {'CPU (s)':>9} {'peak (MB)':>9}"]
+             f"{'error C':>8} {'signal':>8} {'time (s)':>9} {'check (s)':>9} {'CPU (s)':>9} {'peak (MB)':>9} "
+             f"{'reads':>5}"]
     for r in records:
         def number(x, fmt):
             return format(x, fmt) if math.isfinite(x) else "-"
@@ -207,7 +262,8 @@ def runs_table(records) -> str:
                      f"{_percent(r.signal_error):>8} {r.wall_s:>9.1f} "
                      f"{number(r.error_estimate_wall_s, '.1f'):>9} "
                      f"{number(r.cpu_s + (r.error_estimate_cpu_s if r.checked else 0.0), '.1f'):>9} "
-                     f"{number(r.peak_rss_mb, '.0f'):>9}")
+                     f"{number(r.peak_rss_mb, '.0f'):>9} "
+                     f"{_reads(reading_plates(r.final_capacitance_pF) if r.ok else None):>5}")
     return "\n".join(lines)
 
 

@@ -309,6 +309,35 @@ def synthetic_store(path, scene, metrics: dict, failures=()):
         write_selection(store, store_selection(store))
 
 
+def test_a_design_with_a_silent_plate_reads_as_one_plate_less(tmp_path, scene, capsys):
+    """k = 3's best wins the plateau rule on its min L1, but its plate 2 reads 5 pF at every
+    pose: ``mscap inspect`` counts the plates that read (per k and per run) and says that
+    as a sensor it is a 2-plate design, with its min L1 over those plates."""
+    from mscap.service.report import reading_plates
+
+    path = tmp_path / "r.h5"
+    designs = {2: [[0, 0], [1, 1], [2, 2]],  # min L1 2 pF
+               3: [[0, 0, 5], [1.5, 1.5, 5], [3, 3, 5.001]]}  # 3 pF, plate 2 silent
+    with open_store(path, scene, mpi_size=2) as store:
+        for k, c in designs.items():
+            record = synthetic_record(k, 1000 * k)
+            write_run(store, RunRecord(**{**record.__dict__, "final_capacitance_pF": np.array(c, float)}))
+        write_selection(store, store_selection(store))
+    reading = reading_plates(np.array(designs[3], float))
+    assert (reading.k, reading.silent, reading.plates, reading.metric_pF) == (3, (2,), 2, pytest.approx(3.0))
+    assert reading_plates(np.array(designs[2], float)).silent == ()
+    assert main(["inspect", str(path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["chosen_k"] == 3 and [e["best_reading_plates"] for e in doc["per_k"]] == [2, 2, None]
+    assert main(["inspect", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert text.splitlines()[1].split()[-1] == "reads" and "2/3" in text and "2/2" in text
+    assert ("k = 3's best design reads on 2 of its 3 plates: without plate 2 its min L1 is 3 pF, k = 2's best "
+            "2 pF: as a sensor it is a 2-plate design") in text
+    assert main(["inspect", str(path), "--runs"]) == 0
+    assert [line.split()[-1] for line in capsys.readouterr().out.splitlines()] == ["reads", "2/2", "2/3"]
+
+
 def test_inspect_json(tmp_path, scene, capsys):
     path = tmp_path / "r.h5"
     synthetic_store(path, scene, {(2, 2000): 1.0, (2, 2001): 1.5, (3, 3000): 2.0, (4, 4000): 2.02},
