@@ -37,6 +37,7 @@ class Panel:
     runs_failed: int
     chosen: bool
     bound_mm: float | None = None  # the read-back bound, when the selection uses it
+    silent: tuple[int, ...] = ()  # plates of the run's design that read nothing (report.silent_plates)
 
     @property
     def empty(self) -> bool:
@@ -47,7 +48,8 @@ class Panel:
         if self.empty:
             return f"k = {self.k}, no successful run"
         score = f"bound {self.bound_mm:.3g} mm" if self.bound_mm is not None else f"min L1 = {self.metric:.4g} pF"
-        return f"k = {self.k}, {score}" + (" (chosen)" if self.chosen else "")
+        reads = f"\n{self.k - len(self.silent)} of {self.k} plates read the poses" if self.silent else ""
+        return f"k = {self.k}, {score}{reads}" + (" (chosen)" if self.chosen else "")
 
     @property
     def note(self) -> str:
@@ -89,16 +91,19 @@ def _sheet_outline(store) -> np.ndarray | None:
         return None
 
 
-def draw_layout(ax, sheet: np.ndarray | None, outlines, colours, fontsize: float = 8) -> None:
+def draw_layout(ax, sheet: np.ndarray | None, outlines, colours, fontsize: float = 8, silent=()) -> None:
     """Sheet outline in grey, plates filled in ``colours(j)`` and numbered (also
-    ``mscap optimize``'s layout figure)."""
+    ``mscap optimize``'s layout figure); the ``silent`` plates (they read nothing,
+    :func:`mscap.service.report.silent_plates`) grey and hatched, numbered "j silent"."""
     if sheet is not None:
         ax.plot(*np.vstack([sheet, sheet[:1]]).T, color="0.3", lw=1)
     for j, o in enumerate(outlines):
         closed = np.vstack([o, o[:1]])
-        ax.fill(*closed.T, color=colours(j % 10), alpha=0.35)
-        ax.plot(*closed.T, color=colours(j % 10), lw=1)
-        ax.text(*o.mean(axis=0), str(j), ha="center", va="center", fontsize=fontsize)
+        colour = "0.55" if j in silent else colours(j % 10)
+        ax.fill(*closed.T, color=colour, alpha=0.35, hatch="////" if j in silent else None)
+        ax.plot(*closed.T, color=colour, lw=1)
+        ax.text(*o.mean(axis=0), f"{j} silent" if j in silent else str(j), ha="center", va="center",
+                fontsize=fontsize)
     ax.set_aspect("equal")
 
 
@@ -150,15 +155,20 @@ def plot_results(results, output, dpi: int = 120) -> list[Panel]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from dataclasses import replace
+
+    from mscap.service.report import reading_plates
     from mscap.service.store import StoreError, finished_ids, read_run, read_store, store_selection
 
     with read_store(results) as store:
         if not finished_ids(store):
             raise StoreError(f"{results}: no finished runs stored yet; nothing to plot")
         selection = store_selection(store)
-        items = panels(selection)
+        runs = {p.k: read_run(store, p.run_id) for p in panels(selection) if not p.empty}
+        items = [replace(p, silent=reading_plates(runs[p.k].final_capacitance_pF).silent) if p.k in runs else p
+                 for p in panels(selection)]
         sheet = _sheet_outline(store)
-        outlines = {p.k: read_run(store, p.run_id).final_outlines for p in items if not p.empty}
+        outlines = {k: run.final_outlines for k, run in runs.items()}
         scene_name = str(store.attrs.get("scene_name", "?"))
 
     rows, cols = grid_shape(len(items))
@@ -181,7 +191,7 @@ def plot_results(results, output, dpi: int = 120) -> list[Panel]:
             ax.set_yticks([])
             _frame(ax, "0.7", 0.8)
         else:
-            draw_layout(ax, sheet, outlines[p.k], colours)
+            draw_layout(ax, sheet, outlines[p.k], colours, silent=p.silent)
             ax.tick_params(labelsize=7)
             if p.chosen:
                 _frame(ax, CHOSEN_COLOUR, 4)

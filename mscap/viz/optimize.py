@@ -23,13 +23,15 @@ def optimize_figure(path: Path, scene: Scene, before, after, c_before: np.ndarra
     import matplotlib.pyplot as plt
 
     from mscap.design.history import min_pairwise_l1
+    from mscap.service.report import reading_plates
     from mscap.viz.layouts import draw_layout
 
     fig, axes = plt.subplots(2, 2, figsize=(10, 8.5))
     colours = plt.get_cmap("tab10")
     for col, (title, layout, caps) in enumerate((("initial", before, c_before), ("optimised", after, c_after))):
         ax = axes[0, col]
-        draw_layout(ax, scene.sheet_outline_mm, layout.outlines, colours, fontsize=10)
+        draw_layout(ax, scene.sheet_outline_mm, layout.outlines, colours, fontsize=10,
+                    silent=reading_plates(caps).silent)
         for p in scene.poses:
             if p.kind == "poke":
                 ax.add_patch(plt.Circle(p.center_mm, p.radius_mm, fill=False, ls="--", color="k", lw=0.8))

@@ -40,6 +40,9 @@ def test_panels_logic():
     assert items[0].title == "k = 2, min L1 = 1 pF"
     assert items[3].empty and items[3].note == "all 2 runs failed" and "no successful run" in items[3].title
     assert items[4].empty and items[4].note == "no runs"
+    from dataclasses import replace
+
+    assert replace(items[1], silent=(2,)).title == "k = 3, min L1 = 2 pF\n2 of 3 plates read the poses (chosen)"
     assert not any(p.chosen for p in panels(select(runs[4:], 0.05)))  # no success: nothing flagged
     assert grid_shape(4) == (2, 4) and grid_shape(3) == (1, 4) and grid_shape(1) == (1, 2)
 
@@ -82,3 +85,21 @@ def test_not_a_results_file(tmp_path, capsys):
     bogus.write_text("not hdf5")
     assert main(["plot", str(bogus), "-o", str(tmp_path / "fig.png")]) == 2
     assert "cannot open as HDF5" in capsys.readouterr().err
+
+
+def test_a_silent_plate_is_drawn_as_such(tmp_path, scene):
+    """The figure's panels carry the plates of each best design that read nothing
+    (``report.silent_plates``: their spread over the poses is under half the noise)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from mscap.viz.layouts import plot_results
+
+    path = tmp_path / "results.h5"
+    c = np.array([[0.0, 0.0, 5.0], [1.5, 1.5, 5.0], [3.0, 3.0, 5.0]])  # plate 2 reads 5 pF at every pose
+    with open_store(path, scene) as store:
+        write_run(store, replace(synthetic_record(3, 3000), final_capacitance_pF=c))
+        write_run(store, replace(synthetic_record(2, 2000), final_capacitance_pF=c[:, :2]))
+    items = plot_results(path, tmp_path / "fig.png", dpi=DPI)
+    assert [(p.k, p.silent) for p in items if not p.empty] == [(2, ()), (3, (2,))]
