@@ -27,9 +27,9 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from mscap.service.report import (cost, cost_text, error_estimates, history_text, narrow_necks,
-                                      narrow_necks_text, reading_plates, reading_text, runs_table, silent_plates,
-                                      silent_plates_text, summary_json, table)
-    from mscap.service.store import finished_ids, read_run, read_store, store_selection
+                                      narrow_necks_text, reading_choice, reading_plates, reading_text, runs_table,
+                                      silent_plates, silent_plates_text, summary_json, table)
+    from mscap.service.store import finished_ids, read_run, read_store, run_summaries, store_selection
 
     with read_store(args.results) as store:
         if args.run_id:
@@ -41,15 +41,21 @@ def run(args) -> int:
         selection = store_selection(store)
         errors = error_estimates(store)
         silent, necks, feature = [], [], 0.0
-        # How many plates of each k's best design read its poses (a silent plate tells them nothing).
-        readings = {s.best_run: reading_plates(read_run(store, s.best_run).final_capacitance_pF)
-                    for s in selection.per_k if s.best_run is not None}
+        # How many plates of each design read its poses (a silent plate tells them nothing).
+        summaries = run_summaries(store)
+        readings = {r.id: reading_plates(read_run(store, r.id).final_capacitance_pF)
+                    for r in summaries if r.ok and not r.pruned}
+        by_reading = reading_choice(summaries, readings, selection.plateau_tol)
+        any_silent = any(r.silent for r in readings.values())
         if selection.chosen_run is not None:
             chosen = read_run(store, selection.chosen_run)
             silent = silent_plates(chosen.final_capacitance_pF)
             feature, necks = narrow_necks(chosen.final_outlines, str(store.attrs.get("scene_toml", "")))
         if args.json:
             document = summary_json(selection, errors, readings)
+            document["by_reading_plates"] = {"plates": by_reading.plates, "run": by_reading.run,
+                                             "best": {str(n): {"score": v, "run": rid}
+                                                      for n, (v, rid) in sorted(by_reading.best.items())}}
             document["silent_plates"] = [{"plate": j, "mean_pF": m, "std_pF": sd} for j, m, sd in silent]
             document["narrow_necks"] = [{"plate": j, "width_mm": w, "feature_mm": feature} for j, w in necks]
             document["cost"] = cost(store).as_dict()
@@ -61,6 +67,8 @@ def run(args) -> int:
             if silent:
                 print(silent_plates_text(selection.chosen_run, silent))
                 print(reading_text(selection, readings))
+            if any_silent:
+                print(by_reading.text(selection.chosen_k))
             if necks:
                 print(narrow_necks_text(selection.chosen_run, necks, feature))
     return 0

@@ -13,7 +13,7 @@ from mscap.scene.calibration import NoiseModel
 from mscap.service.store import HISTORY_COLUMNS, finished_ids
 
 __all__ = ["error_estimates", "summary_json", "table", "runs_table", "history_text", "silent_plates",
-           "silent_plates_text", "Reading", "reading_plates", "reading_text", "Cost", "cost", "cost_text"]
+           "silent_plates_text", "Reading", "reading_plates", "reading_text", "ReadingChoice", "reading_choice", "Cost", "cost", "cost_text"]
 
 #: A plate whose read-out varies over the design poses by less than this fraction of the
 #: per-reading offset noise (appendix A: ±2 pF uniform, σ = 1.15 pF) tells them nothing,
@@ -166,6 +166,46 @@ def reading_text(selection, readings: dict) -> str:
     if smaller is not None:
         line += f", k = {n}'s best {smaller.best_metric:.4g} pF"
     return line + f": as a sensor it is a {n}-plate design"
+
+
+@dataclass(frozen=True)
+class ReadingChoice:
+    """The plateau rule (:func:`~mscap.service.selection.choose_k`) on the number of plates
+    that read instead of k: every finished, unpruned design counts as the sensor of its
+    plates that read, scored by its min L1 over them (or its read-back bound). ``best``
+    maps each number of plates to ``(score, run)``; ``plates`` and ``run`` are the choice."""
+
+    plates: int | None
+    run: str | None
+    best: dict
+    by_bound: bool
+
+    def text(self, chosen_k: int | None) -> str:
+        if self.plates is None:
+            return ""
+        unit = "mm" if self.by_bound else "pF"
+        per = ", ".join(f"{n}: {score:.4g} {unit} ({rid})" for n, (score, rid) in sorted(self.best.items()))
+        same = " (the rule on k agrees)" if self.plates == chosen_k else f" (the rule on k picks {chosen_k})"
+        return (f"  by the plates that read: {self.plates} plates, run {self.run}{same}; best per number of "
+                f"plates read: {per}")
+
+
+def reading_choice(runs, readings: dict, plateau_tol: float) -> ReadingChoice:
+    """:class:`ReadingChoice` of ``runs`` (``RunSummary``-like: ``id``, ``ok``, ``pruned``,
+    ``metric``, ``bound_mm``) with ``readings`` (run id → :class:`Reading`). A silent
+    plate adds nothing to a read-back bound, so bound scenes keep each run's bound."""
+    from mscap.service.selection import choose_k
+
+    good = [r for r in runs if r.ok and not r.pruned and r.id in readings and math.isfinite(r.metric)]
+    by_bound = bool(good) and all(math.isfinite(r.bound_mm) and r.bound_mm > 0 for r in good)
+    best = {}
+    for r in sorted(good, key=lambda r: r.id):  # ties to the smaller id, as select()
+        n, value = readings[r.id].plates, r.bound_mm if by_bound else readings[r.id].metric_pF
+        if n not in best or (value < best[n][0] if by_bound else value > best[n][0]):
+            best[n] = (value, r.id)
+    ns = sorted(best)
+    n = choose_k(ns, [1.0 / best[i][0] if by_bound else best[i][0] for i in ns], plateau_tol)
+    return ReadingChoice(plates=n, run=None if n is None else best[n][1], best=best, by_bound=by_bound)
 
 
 def silent_plates_text(run_id: str, plates, noise=None) -> str:

@@ -329,11 +329,16 @@ def test_a_design_with_a_silent_plate_reads_as_one_plate_less(tmp_path, scene, c
     assert main(["inspect", str(path), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["chosen_k"] == 3 and [e["best_reading_plates"] for e in doc["per_k"]] == [2, 2, None]
+    # As sensors both designs have 2 plates; k = 3's reads better over them (3 against 2 pF).
+    assert doc["by_reading_plates"] == {"plates": 2, "run": "k3_s3000_random",
+                                        "best": {"2": {"score": pytest.approx(3.0), "run": "k3_s3000_random"}}}
     assert main(["inspect", str(path)]) == 0
     text = capsys.readouterr().out
     assert text.splitlines()[1].split()[-1] == "reads" and "2/3" in text and "2/2" in text
     assert ("k = 3's best design reads on 2 of its 3 plates: without plate 2 its min L1 is 3 pF, k = 2's best "
             "2 pF: as a sensor it is a 2-plate design") in text
+    assert ("by the plates that read: 2 plates, run k3_s3000_random (the rule on k picks 3); best per number of "
+            "plates read: 2: 3 pF (k3_s3000_random)") in text
     assert main(["inspect", str(path), "--runs"]) == 0
     assert [line.split()[-1] for line in capsys.readouterr().out.splitlines()] == ["reads", "2/2", "2/3"]
 
@@ -464,3 +469,27 @@ def test_read_back_bounds_round_trip_and_decide_the_selection(tmp_path, scene, c
     assert "best bound (mm)" in out and "k2_s2000_random" in out and "k2_s2001_random" not in out
     assert main(["inspect", str(path), "--runs"]) == 0
     assert "1.6 → 0.8" in capsys.readouterr().out
+
+
+def test_the_plateau_rule_on_the_plates_that_read():
+    """``reading_choice``: each finished, unpruned design counts as the sensor of its plates
+    that read, scored over those plates (min L1) or by its read-back bound."""
+    from mscap.service.report import Reading, reading_choice
+    from mscap.service.selection import RunSummary
+
+    runs = [RunSummary("k2_s1_lloyd", 2, True, 2.0, 1.0), RunSummary("k3_s2_lloyd", 3, True, 3.0, 1.0),
+            RunSummary("k4_s3_lloyd", 4, True, 3.5, 1.0), RunSummary("k4_s4_random", 4, True, 9.0, 1.0, pruned=True),
+            RunSummary("k5_s5_lloyd", 5, False, math.nan, 1.0)]
+    readings = {"k2_s1_lloyd": Reading(2, (), 2.0), "k3_s2_lloyd": Reading(3, (2,), 2.9),
+                "k4_s3_lloyd": Reading(4, (), 3.5), "k4_s4_random": Reading(4, (), 9.0)}
+    tight = reading_choice(runs, readings, 0.05)  # 3.5 > 1.05 × 2.9: four plates
+    assert (tight.plates, tight.run) == (4, "k4_s3_lloyd") and not tight.by_bound
+    assert tight.best == {2: (2.9, "k3_s2_lloyd"), 4: (3.5, "k4_s3_lloyd")}  # the k = 3 design is a 2-plate one
+    loose = reading_choice(runs, readings, 0.25)  # 3.5 ≤ 1.25 × 2.9: two plates, read by the k = 3 design
+    assert (loose.plates, loose.run) == (2, "k3_s2_lloyd")
+    assert "by the plates that read: 2 plates, run k3_s2_lloyd (the rule on k picks 4)" in loose.text(4)
+    bounded = [RunSummary(r.id, r.k, r.ok, r.metric, r.wall_s, bound_mm=b, pruned=r.pruned)
+               for r, b in zip(runs, (0.5, 0.45, 0.3, 0.1, math.nan))]
+    by_bound = reading_choice(bounded, readings, 0.05)
+    assert by_bound.by_bound and by_bound.best == {2: (0.45, "k3_s2_lloyd"), 4: (0.3, "k4_s3_lloyd")}
+    assert by_bound.plates == 4 and reading_choice([], {}, 0.05).text(None) == ""
