@@ -13,7 +13,8 @@ from mscap.scene.calibration import NoiseModel
 from mscap.service.store import HISTORY_COLUMNS, finished_ids
 
 __all__ = ["error_estimates", "summary_json", "table", "runs_table", "history_text", "silent_plates",
-           "silent_plates_text", "Reading", "reading_plates", "reading_text", "ReadingChoice", "reading_choice", "Cost", "cost", "cost_text"]
+           "silent_plates_text", "Reading", "reading_plates", "reading_text", "ReadingChoice", "reading_choice",
+           "Cost", "cost", "cost_text"]
 
 #: A plate whose read-out varies over the design poses by less than this fraction of the
 #: per-reading offset noise (appendix A: ±2 pF uniform, σ = 1.15 pF) tells them nothing,
@@ -258,7 +259,6 @@ def table(selection, title: str = "", errors: dict | None = None, readings: dict
     its poses."""
     lines = [title] if title else []
     readings = readings or {}
-
     bound = selection.by_bound  # runs designed for read-back: best = smallest bound
     pruned = any(s.runs_pruned for s in selection.per_k)  # a column only when a rule pruned
     lines.append(f"{'':1} {'k':>3} {'ok':>4} " + (f"{'pruned':>6} " if pruned else "") + f"{'failed':>6} "
@@ -289,7 +289,8 @@ def table(selection, title: str = "", errors: dict | None = None, readings: dict
 def runs_table(records) -> str:
     """One line per run: status, iterations, the metric and its value on the finer mesh,
     the error estimates of C and of the pose-to-pose distances, the run's wall time and
-    the check's."""
+    the check's, its worker's CPU seconds (run and check) and peak memory, and how many of
+    its plates read the poses."""
     lines = [f"{'run':<20} {'status':<6} {'its':>4} {'bound (mm)':>15} {'min L1 (pF)':>12} {'finer (pF)':>11} "
              f"{'error C':>8} {'signal':>8} {'time (s)':>9} {'check (s)':>9} {'CPU (s)':>9} {'peak (MB)':>9} "
              f"{'reads':>5}"]
@@ -301,7 +302,7 @@ def runs_table(records) -> str:
                      f"{number(r.finer_metric_pF, '.6g'):>11} {_percent(r.error_estimate):>8} "
                      f"{_percent(r.signal_error):>8} {r.wall_s:>9.1f} "
                      f"{number(r.error_estimate_wall_s, '.1f'):>9} "
-                     f"{number(r.cpu_s + (r.error_estimate_cpu_s if r.checked else 0.0), '.1f'):>9} "
+                     f"{number(r.cpu_s + np.nan_to_num(r.error_estimate_cpu_s), '.1f'):>9} "
                      f"{number(r.peak_rss_mb, '.0f'):>9} "
                      f"{_reads(reading_plates(r.final_capacitance_pF) if r.ok else None):>5}")
     return "\n".join(lines)
