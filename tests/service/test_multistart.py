@@ -11,6 +11,7 @@ import re
 import shutil
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from mscap.service.store import finished_ids, read_run, read_store
 from tests.conftest import SMALL_SCENE, to_toml
 
 MSCAP = str(Path(sys.executable).with_name("mscap"))
+ROOT = Path(__file__).resolve().parents[2]
 ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
            OMPI_MCA_rmaps_base_oversubscribe="1", OMP_NUM_THREADS="1")
 needs_mpirun = pytest.mark.skipif(shutil.which("mpirun") is None, reason="no mpirun (make installs openmpi-bin)")
@@ -510,3 +512,30 @@ def test_heartbeat_bounds_the_silence_while_starts_run(scene_file, tmp_path):
     beats = [ln for ln in lines if ln.startswith("... ")]
     assert beats
     assert any(re.search(r"rank [12] k\d_s\d{4}_(lloyd|random): step \d+, [0-9.]+ pF, \d+ s", ln) for ln in beats)
+
+
+@needs_mpirun
+def test_a_rank_done_early_waits_for_the_others_without_a_core(tmp_path):
+    """``farm.quiet_barrier``: every rank passes it before leaving ``farm.run``, so none waits
+    in ``MPI_Finalize``, where OpenMPI polls at full speed. Rank 1 arrives 1.5 s before
+    rank 0; its CPU over the wait stays a small fraction of it."""
+    script = tmp_path / "barrier.py"
+    script.write_text(textwrap.dedent(f"""
+        import sys, time
+        sys.path.insert(0, {str(ROOT)!r})
+        from mpi4py import MPI
+        from mscap.service.farm import quiet_barrier
+        comm = MPI.COMM_WORLD
+        if comm.Get_rank() == 0:
+            time.sleep(1.5)
+        cpu, wall = time.process_time(), time.perf_counter()
+        quiet_barrier(comm)
+        print(comm.Get_rank(), time.process_time() - cpu, time.perf_counter() - wall, flush=True)
+    """))
+    done = subprocess.run(["mpirun", "-n", "2", "--oversubscribe", sys.executable, str(script)], env=ENV,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    rows = {int(r): (float(c), float(w)) for r, c, w in (line.split() for line in done.stdout.splitlines())}
+    cpu, wall = rows[1]
+    assert wall > 1.0  # it did wait for rank 0
+    assert cpu < 0.2 * wall, rows  # polling at full speed would spend about the whole wait

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from mscap.cli import main
+from mscap.fem.simulate import release_freed_memory
 from mscap.service.report import cost, cost_text
 from mscap.service.store import open_store, read_run, read_store, write_run
 from mscap.service.usage import Meter, peak_rss_mb, reset_peak
@@ -32,14 +33,15 @@ def test_the_meter_counts_this_process_cpu_not_its_sleep():
 
 
 def test_the_peak_sees_an_allocation_and_a_new_meter_forgets_it():
-    before = peak_rss_mb()
     meter = Meter()
+    before = meter.peak_rss_mb  # what the process holds now, where the peak was reset (Linux)
     block = np.ones(200 * 2**20 // 8)  # 200 MB, every page touched
-    assert meter.peak_rss_mb >= before + 190
+    assert meter.peak_rss_mb >= before + 160 and meter.peak_rss_mb >= peak_rss_mb() - 1e-9
     peak = meter.peak_rss_mb
     del block
+    release_freed_memory()  # as a worker does before each start: the heap's free pages go back
     if reset_peak():  # Linux: the high-water mark goes back to what the process holds now
-        assert Meter().peak_rss_mb < peak - 150
+        assert Meter().peak_rss_mb < peak - 120
     else:  # elsewhere the peak so far: an upper bound
         assert Meter().peak_rss_mb >= peak
 
