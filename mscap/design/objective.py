@@ -215,19 +215,9 @@ class SeparationBarrier(Term):
         shift = np.where((owner[p] == sheet) | (owner[e] == sheet), self.margin_mm, self.gap_mm)
         return np.where(owner[p] == owner[e], np.where(necks, self.feature_mm, 0.0), shift)
 
-    def _barrier(self, s, necks):
-        """b(s) per pair, with d̂ = ``feature_mm`` across necks and ``dhat_mm`` elsewhere."""
-        out = barrier(s, self.dhat_mm)
-        if necks.any():
-            out[necks] = barrier(s[necks], self.feature_mm)
-        return out
-
-    def _barrier_slope(self, s, necks):
-        """b'(s) per pair, as :meth:`_barrier`."""
-        out = barrier_derivatives(s, self.dhat_mm)[0]
-        if necks.any():
-            out[necks] = barrier_derivatives(s[necks], self.feature_mm)[0]
-        return out
+    def _dhat(self, necks):
+        """The barrier's reach per pair: ``feature_mm`` across a neck, ``dhat_mm`` elsewhere."""
+        return np.where(necks, self.feature_mm, self.dhat_mm)
 
     def _violation(self, owner, p, e, s, necks):
         bad = np.flatnonzero(s <= 0)
@@ -245,7 +235,7 @@ class SeparationBarrier(Term):
         x, owner, nxt, prv, _ = self._stack(outlines)
         p, e, necks = self._pairs(x, owner, nxt, prv, self.dhat_mm, False)
         d, _, _ = segment_projection(x[p], x[e], x[nxt[e]])
-        return float(self._barrier(d - self._shift(owner, p, e, necks), necks).sum())
+        return float(barrier(d - self._shift(owner, p, e, necks), self._dhat(necks)).sum())
 
     def value_and_gradient(self, outlines):
         """B and a tuple of ``(m_i, 2)`` gradients (mm); raises GeometryError if infeasible."""
@@ -254,15 +244,16 @@ class SeparationBarrier(Term):
         d, t, r = segment_projection(x[p], x[e], x[nxt[e]])
         s = d - self._shift(owner, p, e, necks)
         self._violation(owner, p, e, s, necks)
-        on = s < np.where(necks, self.feature_mm, self.dhat_mm)
-        p, e, d, t, r, s, necks = p[on], e[on], d[on], t[on], r[on], s[on], necks[on]
+        dhat = self._dhat(necks)
+        on = s < dhat
+        p, e, d, t, r, s, dhat = p[on], e[on], d[on], t[on], r[on], s[on], dhat[on]
         # ∂d/∂p = n, ∂d/∂a = −(1 − t) n, ∂d/∂b = −t n (t is optimal, so its variation drops).
-        force = (self._barrier_slope(s, necks) / d)[:, None] * r
+        force = (barrier_derivatives(s, dhat)[0] / d)[:, None] * r
         grad = np.zeros_like(x)
         np.add.at(grad, p, force)
         np.add.at(grad, e, -(1 - t)[:, None] * force)
         np.add.at(grad, nxt[e], -t[:, None] * force)
-        value = float(self._barrier(s, necks).sum())
+        value = float(barrier(s, dhat).sum())
         return value, tuple(np.split(grad, np.cumsum(sizes)[:-1])[:-1])
 
     def max_step(self, outlines, directions, keep: float = 0.1, iterations: int = 50) -> float:

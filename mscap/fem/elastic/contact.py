@@ -24,24 +24,28 @@ import numpy as np
 __all__ = ["Ball", "barrier", "barrier_derivatives"]
 
 
-def barrier(d: np.ndarray, dhat: float) -> np.ndarray:
-    """``b(d)`` (mm²); ``inf`` for d ≤ 0."""
+def barrier(d: np.ndarray, dhat) -> np.ndarray:
+    """``b(d)`` (mm²); ``inf`` for d ≤ 0. ``dhat``: one reach, or one per entry of ``d``."""
     d = np.asarray(d, dtype=float)
+    dhat = np.broadcast_to(np.asarray(dhat, dtype=float), d.shape)
     out = np.zeros_like(d)
     near = d < dhat
     with np.errstate(divide="ignore", invalid="ignore"):
-        dn = d[near]
-        out[near] = np.where(dn > 0, -(dn - dhat) ** 2 * np.log(dn / dhat), np.inf)
+        dn, h = d[near], dhat[near]
+        out[near] = np.where(dn > 0, -(dn - h) ** 2 * np.log(dn / h), np.inf)
     return out
 
 
-def barrier_derivatives(d: np.ndarray, dhat: float) -> tuple[np.ndarray, np.ndarray]:
-    """``b'(d)`` (mm) and ``b''(d)`` (dimensionless); zero beyond ``dhat``. Needs d > 0."""
+def barrier_derivatives(d: np.ndarray, dhat) -> tuple[np.ndarray, np.ndarray]:
+    """``b'(d)`` (mm) and ``b''(d)`` (dimensionless); zero beyond ``dhat`` (one reach, or
+    one per entry of ``d``). Needs d > 0."""
     d = np.asarray(d, dtype=float)
+    dhat = np.broadcast_to(np.asarray(dhat, dtype=float), d.shape)
     db, d2b = np.zeros_like(d), np.zeros_like(d)
     near = d < dhat
-    dn, e = d[near], d[near] - dhat
-    log = np.log(dn / dhat)
+    h = dhat[near]
+    dn, e = d[near], d[near] - h
+    log = np.log(dn / h)
     db[near] = -2 * e * log - e ** 2 / dn
     d2b[near] = -2 * log - 4 * e / dn + e ** 2 / dn ** 2
     return db, d2b
