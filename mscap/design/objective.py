@@ -53,7 +53,7 @@ from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, de
 from mscap.design.terms import Sum, Term, Weighted, soft_min
 from mscap.errors import GeometryError, MscapError
 from mscap.fem.elastic.contact import barrier, barrier_derivatives
-from mscap.geometry.polygons import segment_projection
+from mscap.geometry.polygons import along_outline, arc_positions, segment_projection
 from mscap.scene.calibration import NoiseModel
 from mscap.scene.settings import DISTANCES
 
@@ -136,21 +136,6 @@ class SeparationBarrier(Term):
         return (np.vstack(polygons), owner, start + (local + 1) % size,
                 start + (local - 1) % size, sizes)
 
-    @staticmethod
-    def _arc(x, owner, nxt):
-        """Arc length of each vertex from its polygon's first vertex, and its polygon's
-        perimeter (mm)."""
-        step = np.linalg.norm(x[nxt] - x, axis=1)
-        first = np.searchsorted(owner, owner)  # owners are sorted: each polygon's first vertex
-        total = np.cumsum(step) - step
-        return total - total[first], np.bincount(owner, weights=step)[owner]
-
-    @staticmethod
-    def _along(arc, perimeter, a, b):
-        """Distance along the outline between vertices a and b of one polygon, the shorter way."""
-        gap = np.abs(arc[a] - arc[b])
-        return np.minimum(gap, perimeter[a] - gap)
-
     def _pairs(self, x, owner, nxt, prv, reach, same_outline, v=None, keep=0.0):
         """Vertex–edge pairs ``(p, e)`` (edge e runs from vertex e to ``nxt[e]``) that may
         come within ``shift + reach``, and which of them are a neck's (``feature_mm`` > 0:
@@ -179,13 +164,13 @@ class SeparationBarrier(Term):
         own = longest + self.feature_mm  # an outline's own pairs: no gap, or a neck's
         necking = self.feature_mm > 0
         if necking:
-            arc, perimeter = self._arc(x, owner, nxt)
+            arc, perimeter = arc_positions(x, owner, nxt)
         if same_outline or necking:  # the capacitors' own pairs (the sheet's own edges never enter)
             radius = own + (reach if same_outline else self.feature_mm)
             si, sj = np.concatenate([members[o][trees[o].query_pairs(radius, output_type="ndarray")]
                                      for o in range(sheet)] + [np.empty((0, 2), dtype=np.intp)]).T
             if not same_outline:  # only a neck's; a vertex is an end of each edge it pairs with below
-                far = self._along(arc, perimeter, si, sj) > NECK_ARC * self.feature_mm
+                far = along_outline(arc, perimeter, si, sj) > NECK_ARC * self.feature_mm
                 si, sj = si[far], sj[far]
             i, j, gap = np.r_[i, si], np.r_[j, sj], np.r_[gap, np.full(len(si), own)]
         if v is not None:
@@ -200,7 +185,7 @@ class SeparationBarrier(Term):
         same = owner[p] == owner[e]
         necks = np.zeros(len(p), dtype=bool)
         if necking:  # farther apart along the outline than NECK_ARC feature sizes, to e's nearer end
-            ends = np.minimum(self._along(arc, perimeter, p, e), self._along(arc, perimeter, p, nxt[e]))
+            ends = np.minimum(along_outline(arc, perimeter, p, e), along_outline(arc, perimeter, p, nxt[e]))
             necks = same & (ends > NECK_ARC * self.feature_mm)
         use = ~same | necks
         if same_outline:

@@ -10,7 +10,8 @@ import numpy as np
 __all__ = [
     "signed_area", "ccw", "edges", "segments_cross", "self_intersections",
     "points_in_polygon", "segment_projection", "point_segment_distance", "boundary_distance",
-    "polygons_intersect", "coarsened", "narrowest_neck", "square", "disk", "rounded_square",
+    "polygons_intersect", "coarsened", "arc_positions", "along_outline", "narrowest_neck", "square", "disk",
+    "rounded_square",
 ]
 
 
@@ -168,6 +169,23 @@ def polygons_intersect(p: np.ndarray, q: np.ndarray) -> bool:
     return bool(points_in_polygon(p[:1], q)[0] or points_in_polygon(q[:1], p)[0])
 
 
+def arc_positions(x: np.ndarray, owner: np.ndarray, nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Arc length (mm) of each vertex of closed polygons stacked in ``x`` from its polygon's
+    first vertex, and its polygon's perimeter; ``owner`` (sorted) names each vertex's
+    polygon, ``nxt`` its successor."""
+    step = np.linalg.norm(x[nxt] - x, axis=1)
+    first = np.searchsorted(owner, owner)  # each polygon's first vertex
+    total = np.cumsum(step) - step
+    return total - total[first], np.bincount(owner, weights=step)[owner]
+
+
+def along_outline(arc: np.ndarray, perimeter: np.ndarray, a, b) -> np.ndarray:
+    """Distance along their polygon between vertices ``a`` and ``b`` of one polygon, the
+    shorter way round (``arc``, ``perimeter``: :func:`arc_positions`)."""
+    gap = np.abs(arc[a] - arc[b])
+    return np.minimum(gap, perimeter[a] - gap)
+
+
 def narrowest_neck(polygon: np.ndarray, along_mm: float, reach_mm: float) -> float:
     """The smallest distance (mm) between two vertices of the closed ``polygon`` that are
     more than ``along_mm`` apart along it (the shorter way round): the width of its
@@ -176,13 +194,11 @@ def narrowest_neck(polygon: np.ndarray, along_mm: float, reach_mm: float) -> flo
     from scipy.spatial import cKDTree
 
     p = np.asarray(polygon, dtype=float)
-    step = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
-    arc = np.concatenate([[0.0], np.cumsum(step)[:-1]])
     pairs = cKDTree(p).query_pairs(reach_mm, output_type="ndarray")
     if not len(pairs):
         return np.inf
-    apart = np.abs(arc[pairs[:, 0]] - arc[pairs[:, 1]])
-    far = np.minimum(apart, step.sum() - apart) > along_mm
+    arc, perimeter = arc_positions(p, np.zeros(len(p), dtype=np.intp), np.roll(np.arange(len(p)), -1))
+    far = along_outline(arc, perimeter, pairs[:, 0], pairs[:, 1]) > along_mm
     if not far.any():
         return np.inf
     return float(np.linalg.norm(p[pairs[far, 0]] - p[pairs[far, 1]], axis=1).min())
