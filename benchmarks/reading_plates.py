@@ -27,9 +27,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mscap.design.history import min_pairwise_l1  # noqa: E402
-from mscap.service.report import reading_plates  # noqa: E402
+from mscap.service.report import reading_choice, reading_plates  # noqa: E402
 from mscap.service.selection import choose_k  # noqa: E402
-from mscap.service.store import finished_ids, read_run, scene_settings  # noqa: E402
+from mscap.service.store import finished_ids, read_run, run_summaries, scene_settings, store_selection  # noqa: E402
 
 
 def main(argv=None) -> None:
@@ -40,35 +40,38 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     with h5py.File(args.results, "r", locking=False) as f:
         tol = scene_settings(f).plateau_tol
-        runs = [read_run(f, rid) for rid in sorted(finished_ids(f, failed=False))]
+        runs = {rid: read_run(f, rid) for rid in sorted(finished_ids(f, failed=False))}
+        summaries, selection = run_summaries(f), store_selection(f)
+    readings = {rid: reading_plates(r.final_capacitance_pF) for rid, r in runs.items()}
+
+    def finer(rid) -> float:
+        """The run's min L1 on the finer mesh over the plates that read (NaN: unchecked)."""
+        r, silent = runs[rid], readings[rid].silent
+        keep = [j for j in range(r.k) if j not in silent]
+        return min_pairwise_l1(r.finer_capacitance_pF[:, keep]) if r.checked else math.nan
+
     print(f"{'run':<20} {'status':<7} {'min L1':>8} {'reads':>5} {'silent':<8} {'over those':>10} {'finer':>8}")
-    by_k, by_n, count = {}, {}, defaultdict(lambda: defaultdict(int))
-    for r in runs:
-        reading = reading_plates(r.final_capacitance_pF)
-        keep = [j for j in range(r.k) if j not in reading.silent]
-        finer = min_pairwise_l1(r.finer_capacitance_pF[:, keep]) if r.checked else math.nan
+    count = defaultdict(lambda: defaultdict(int))
+    for rid, r in runs.items():
+        reading = readings[rid]
         count[r.k][reading.plates] += 1
-        print(f"{r.id:<20} {r.status:<7} {r.metric:>8.4g} {reading.plates:>2}/{r.k:<2} "
-              f"{','.join(map(str, reading.silent)) or '-':<8} {reading.metric_pF:>10.4g} {finer:>8.4g}")
-        if r.pruned:
-            continue
-        if r.metric > by_k.get(r.k, (-math.inf,))[0]:
-            by_k[r.k] = (r.metric, r.id, r.finer_metric_pF)
-        if reading.metric_pF > by_n.get(reading.plates, (-math.inf,))[0]:
-            by_n[reading.plates] = (reading.metric_pF, r.id, finer)
+        print(f"{rid:<20} {r.status:<7} {r.metric:>8.4g} {reading.plates:>2}/{r.k:<2} "
+              f"{','.join(map(str, reading.silent)) or '-':<8} {reading.metric_pF:>10.4g} {finer(rid):>8.4g}")
     print("\nplates that read, per k (all designs, pruned ones included):")
     for k in sorted(count):
         print(f"  k = {k}: " + ", ".join(f"{n} plates: {c}" for n, c in sorted(count[k].items())))
-    for title, best in (("k (mscap run's rule)", by_k), ("plates that read", by_n)):
+    by_reading = reading_choice([s for s in summaries if s.id in runs], readings, tol)
+    rules = (("k (mscap run's rule)", selection.chosen_k, lambda rid: runs[rid].finer_metric_pF,
+              {s.k: (s.best_metric, s.best_run) for s in selection.per_k if s.best_run is not None}),
+             ("plates that read", by_reading.plates, finer, by_reading.best))
+    for title, chosen, on_finer, best in rules:
         ks = sorted(best)
-        chosen = choose_k(ks, [best[k][0] for k in ks], tol)
-        finer = [best[k][2] for k in ks]
-        finer_chosen = choose_k(ks, finer, tol) if all(math.isfinite(x) for x in finer) else None
+        fine = [on_finer(best[k][1]) for k in ks]
+        fine_chosen = choose_k(ks, fine, tol) if all(math.isfinite(x) for x in fine) else None
         print(f"\nbest per {title}; plateau_tol {tol:g}:")
-        for k in ks:
-            m, rid, fm = best[k]
-            print(f"  {'*' if k == chosen else ' '} {k}: {m:.4g} pF ({rid}; finer mesh {fm:.4g})")
-        print(f"  chosen: {chosen}; on the finer mesh: {finer_chosen if finer_chosen is not None else '- (unchecked)'}")
+        for k, fm in zip(ks, fine):
+            print(f"  {'*' if k == chosen else ' '} {k}: {best[k][0]:.4g} pF ({best[k][1]}; finer mesh {fm:.4g})")
+        print(f"  chosen: {chosen}; on the finer mesh: {fine_chosen if fine_chosen is not None else '- (unchecked)'}")
 
 
 if __name__ == "__main__":
