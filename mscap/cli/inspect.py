@@ -43,12 +43,12 @@ def run(args) -> int:
         silent, necks, feature = [], [], 0.0
         # How many plates of each design read its poses (a silent plate tells them nothing).
         summaries = run_summaries(store)
-        readings = {r.id: reading_plates(read_run(store, r.id).final_capacitance_pF)
-                    for r in summaries if r.ok and not r.pruned}
+        designs = {r.id: read_run(store, r.id) for r in summaries if r.ok and not r.pruned}
+        readings = {rid: reading_plates(run.final_capacitance_pF) for rid, run in designs.items()}
         by_reading = reading_choice(summaries, readings, selection.plateau_tol)
         any_silent = any(r.silent for r in readings.values())
         if selection.chosen_run is not None:
-            chosen = read_run(store, selection.chosen_run)
+            chosen = designs[selection.chosen_run]  # the best of its k: finished, not pruned
             silent = silent_plates(chosen.final_capacitance_pF)
             feature, necks = narrow_necks(chosen.final_outlines, str(store.attrs.get("scene_toml", "")))
         if args.json:
