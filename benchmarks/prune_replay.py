@@ -60,6 +60,36 @@ def replay(runs, kind: str, rule, leave_out=frozenset(), lean_checks: bool = Fal
     return cost / _total(runs), {k: _loss(kind, runs, k, mine) for k, mine in survivors.items()}
 
 
+def replay_on_top(runs, kind: str, rule, lean_checks: bool = False) -> tuple[float, dict[int, float]]:
+    """:func:`replay` of ``rule`` on a file that was already pruned: its pruned starts cost
+    what they cost and stay pruned; each start that ran to its end asks ``rule``'s table in
+    the service's order (largest k first). Exact for the envelope rule, which learns only
+    from finished starts; for the stored rule's later rungs it is an approximation (a start
+    stopped earlier here is missing from them, which could have let a later start go on)."""
+    from mscap.service.multistart import Finished, beaten_by
+    from mscap.service.pruning import history_values
+
+    table = rule.table(kind)
+    cost, survivors = 0.0, {}
+    for k in sorted({r.k for r in runs}, reverse=True):
+        for r in sorted((r for r in runs if r.k == k), key=lambda r: r.seed):
+            if r.pruned:
+                cost += r.wall_s
+                continue
+            values, final = history_values(rule, kind, r.history)
+            stop = next((step for step, value in sorted(values.items()) if not table.decide(k, step, value).keep),
+                        None)
+            if stop is None:
+                beaten = lean_checks and beaten_by(Finished(r.id, k, r.metric, r.bound_mm), survivors.get(k, []))
+                cost += r.wall_s + (0.0 if beaten else _check(r))
+                survivors.setdefault(k, []).append(r)
+                table.finished(k, values, final)
+            else:
+                cost += float(r.history["time_s"][_row(r.history, stop)])
+    finished = [r for r in runs if not r.pruned]
+    return cost / _total(runs), {k: _loss(kind, finished, k, mine) for k, mine in survivors.items()}
+
+
 def replay_synchronous(runs, kind: str, rule, leave_out=frozenset()) -> tuple[float, dict[int, float]]:
     """The same with synchronous successive halving: every start of a k reaches rung 1,
     the best ⌊n/η⌋ (at least one) go on to rung 2, and so on; what a master that parks
@@ -133,12 +163,16 @@ def _loss(kind: str, runs, k: int, kept) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("file", help="an unpruned results file (every start ran to its end)")
+    parser.add_argument("file", help="an unpruned results file (every start ran to its end); with --on-top, a "
+                                     "pruned one")
     parser.add_argument("scene", help="its scene file (for the score and the repeated starts)")
     parser.add_argument("--skip-repeats", action="store_true", help="leave out the repeated Lloyd starts")
     parser.add_argument("--lean-checks", action="store_true",
                         help="finishing starts already beaten within their k skip their finer-mesh check, as the "
                              "service does (the cost stays relative to the whole file, every check included)")
+    parser.add_argument("--on-top", action="store_true",
+                        help="the file was pruned already: replay the envelope rule on the starts that ran to "
+                             "their end, the pruned ones costing what they cost (e.g. the paper poking run)")
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
     from mscap.scene import load_scene
@@ -150,6 +184,9 @@ def main() -> None:
     store = read_store(args.file)
     runs = [read_run(store, rid) for rid in sorted(finished_ids(store))]
     store.close()
+    if args.on_top:
+        on_top(args.file, args.scene, runs, args.lean_checks)
+        return
     if any(r.pruned for r in runs) or not runs:
         sys.exit(f"{args.file}: needs an unpruned file with finished runs")
     # The file's starts per k (it may have run with --starts-per-k), for the repeated starts.
@@ -187,6 +224,25 @@ def main() -> None:
     for step in (2, 3, 5, 10, 20):
         rho = rank_correlation(runs, kind, step)
         print(f"  step {step:2d}: " + ", ".join(f"k = {k}: {v:+.2f}" for k, v in rho.items()))
+
+
+def on_top(file: str, scene_file: str, runs, lean_checks: bool) -> None:
+    """``--on-top``: the envelope rule every 3, 5, 10 steps on a pruned file's finished starts."""
+    from mscap.scene import load_scene
+    from mscap.service.pruning import PruneRule, score_kind
+
+    kind = score_kind(load_scene(scene_file))
+    if kind == "J":
+        sys.exit(f"{scene_file}: its score (J) has no gains for the envelope rule")
+    ks = sorted({r.k for r in runs})
+    print(f"{Path(file)}: {len(runs)} runs, {sum(r.pruned for r in runs)} pruned, score {kind}; cost relative "
+          f"to the file as it ran")
+    print("| rule on top of the stored one | cost | " + " | ".join(f"loss k = {k}" for k in ks) + " |")
+    print("|---|---|" + "---|" * len(ks))
+    for every in (3, 5, 10):
+        cost, loss = replay_on_top(runs, kind, PruneRule(every, envelope=True), lean_checks)
+        print(f"| envelope every {every} steps | {cost:.2f} | "
+              + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks) + " |")
 
 
 if __name__ == "__main__":
