@@ -15,6 +15,11 @@ from the replayed run, as the service does; the cost stays relative to the whole
 Example (seconds; the file from ``benchmarks/pruning.py``)::
 
     .venv/bin/python benchmarks/prune_replay.py out/prune_quick/joystick/full.h5 jobs/joystick_quick.toml --skip-repeats
+
+``--on-top`` replays the envelope rule on a file that was pruned already, its pruned
+starts at their stored cost (the paper poking run: docs/performance.md §10)::
+
+    .venv/bin/python benchmarks/prune_replay.py out/paper/poking.h5 jobs/poking.toml --on-top
 """
 
 from __future__ import annotations
@@ -39,7 +44,13 @@ def replay(runs, kind: str, rule, leave_out=frozenset(), lean_checks: bool = Fal
     rule shares gains across k, so the order matters to it; the rung table is per k).
     ``lean_checks``: a finishing start that an earlier finished start of its k beats skips
     its finer-mesh check, as the service does since 2026-12-04
-    (:func:`mscap.service.multistart.beaten_by`)."""
+    (:func:`mscap.service.multistart.beaten_by`).
+
+    On a file that was pruned already (``--on-top``) its pruned starts cost what they cost
+    and stay pruned, and only the starts that ran to their end ask ``rule``'s table: exact
+    for the envelope rule, which learns only from finished starts; for the stored rule's
+    later rungs an approximation (a start stopped earlier here is missing from them, which
+    could have let a later start go on). Losses are then against the file's finished starts."""
     from mscap.service.multistart import Finished, beaten_by
     from mscap.service.pruning import history_values
 
@@ -47,32 +58,6 @@ def replay(runs, kind: str, rule, leave_out=frozenset(), lean_checks: bool = Fal
     cost, survivors = 0.0, {}
     for k in sorted({r.k for r in runs}, reverse=True):
         for r in sorted((r for r in runs if r.k == k and r.id not in leave_out), key=lambda r: r.seed):
-            values, final = history_values(rule, kind, r.history)
-            stop = next((step for step, value in sorted(values.items()) if not table.decide(k, step, value).keep),
-                        None)
-            if stop is None:
-                beaten = lean_checks and beaten_by(Finished(r.id, k, r.metric, r.bound_mm), survivors.get(k, []))
-                cost += r.wall_s + (0.0 if beaten else _check(r))
-                survivors.setdefault(k, []).append(r)
-                table.finished(k, values, final)
-            else:
-                cost += float(r.history["time_s"][_row(r.history, stop)])
-    return cost / _total(runs), {k: _loss(kind, runs, k, mine) for k, mine in survivors.items()}
-
-
-def replay_on_top(runs, kind: str, rule, lean_checks: bool = False) -> tuple[float, dict[int, float]]:
-    """:func:`replay` of ``rule`` on a file that was already pruned: its pruned starts cost
-    what they cost and stay pruned; each start that ran to its end asks ``rule``'s table in
-    the service's order (largest k first). Exact for the envelope rule, which learns only
-    from finished starts; for the stored rule's later rungs it is an approximation (a start
-    stopped earlier here is missing from them, which could have let a later start go on)."""
-    from mscap.service.multistart import Finished, beaten_by
-    from mscap.service.pruning import history_values
-
-    table = rule.table(kind)
-    cost, survivors = 0.0, {}
-    for k in sorted({r.k for r in runs}, reverse=True):
-        for r in sorted((r for r in runs if r.k == k), key=lambda r: r.seed):
             if r.pruned:
                 cost += r.wall_s
                 continue
@@ -240,7 +225,7 @@ def on_top(file: str, scene_file: str, runs, lean_checks: bool) -> None:
     print("| rule on top of the stored one | cost | " + " | ".join(f"loss k = {k}" for k in ks) + " |")
     print("|---|---|" + "---|" * len(ks))
     for every in (3, 5, 10):
-        cost, loss = replay_on_top(runs, kind, PruneRule(every, envelope=True), lean_checks)
+        cost, loss = replay(runs, kind, PruneRule(every, envelope=True), lean_checks=lean_checks)
         print(f"| envelope every {every} steps | {cost:.2f} | "
               + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks) + " |")
 
