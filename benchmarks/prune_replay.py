@@ -121,6 +121,42 @@ def _rung_scores(rule, kind: str, r) -> dict[int, float]:
     return history_values(rule, kind, r.history)[0]
 
 
+def score_error(kind: str, r) -> float:
+    """The relative change of a run's score on the finer mesh: what two runs' scores can
+    be told apart by (NaN without a check)."""
+    if kind == "bound":
+        return abs(r.finer_bound_mm / r.bound_mm - 1.0) if math.isfinite(r.finer_bound_mm) else math.nan
+    return r.metric_error
+
+
+def blind_odds(runs, kind: str, leave_out=frozenset(), fraction: float = 1 / 3,
+               error: float | None = None) -> dict[int, tuple[int, int, float]]:
+    """Per k: of its ``n`` starts, how many (``w``) end within the score error of the best
+    (:func:`score_error` of the best run), and the probability that ``⌊fraction · n⌋``
+    starts picked blindly include one of them: ``1 − C(n − w, m) / C(n, m)``. A rule that
+    runs a ``fraction`` of the starts to their end and knows nothing of their ends does
+    this well; one whose early scores rank the ends (rank correlation near +1) better.
+    ``error``: the score error to use for every k (files written before the finer-mesh
+    bound was stored have none)."""
+    out = {}
+    for k in sorted({r.k for r in runs}):
+        mine = [r for r in runs if r.k == k and r.id not in leave_out]
+        if kind == "bound":
+            best = min(mine, key=lambda r: r.bound_mm)
+            tol = score_error(kind, best) if error is None else error
+            near = [r for r in mine if r.bound_mm <= best.bound_mm * (1 + tol)]
+        else:
+            best = max(mine, key=lambda r: r.metric)
+            tol = score_error(kind, best) if error is None else error
+            near = [r for r in mine if r.metric >= best.metric * (1 - tol)]
+        if not near:  # no finer-mesh score stored
+            continue
+        n, w = len(mine), len(near)
+        m = max(int(fraction * n), 1)
+        out[k] = (n, w, 1.0 - math.comb(n - w, m) / math.comb(n, m))
+    return out
+
+
 def _row(history, step: int) -> int | None:
     """The history row of accepted step ``step`` (``None`` if the run never reached it)."""
     rows = np.flatnonzero((np.asarray(history["iteration"]) == step)
@@ -155,6 +191,9 @@ def main() -> None:
     parser.add_argument("--lean-checks", action="store_true",
                         help="finishing starts already beaten within their k skip their finer-mesh check, as the "
                              "service does (the cost stays relative to the whole file, every check included)")
+    parser.add_argument("--score-error", type=float,
+                        help="the relative finer-mesh error of the score for the odds of a blind third (default: "
+                             "each k's best run's own, stored since the finer-mesh bound was)")
     parser.add_argument("--on-top", action="store_true",
                         help="the file was pruned already: replay the envelope rule on the starts that ran to "
                              "their end, the pruned ones costing what they cost (e.g. the paper poking run)")
@@ -205,6 +244,14 @@ def main() -> None:
             label = f"envelope every {every} steps"
             print(f"| {label} | {cost:.2f} | " + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks)
                   + " |")
+    odds = blind_odds(runs, kind, leave_out, error=args.score_error)
+    print("\nstarts within their score's finer-mesh error of the best, and the odds that a third of the starts, "
+          "picked blindly, hold one:")
+    if odds:
+        print("  " + ", ".join(f"k = {k}: {w} of {n}, {p:.2f}" for k, (n, w, p) in odds.items())
+              + f"; every k: {math.prod(p for _, _, p in odds.values()):.2f}")
+    else:
+        print("  (no finer-mesh score stored: give --score-error)")
     print("\nrank correlation of the score at a step with the final score, per k:")
     for step in (2, 3, 5, 10, 20):
         rho = rank_correlation(runs, kind, step)
