@@ -9,8 +9,10 @@ fastest control ``first_step_mm``); the step is capped so that no control moves 
 of its current value) and no triangle of the electrostatic or the elastic 2D mesh keeps
 less than a tenth of its area (:func:`mscap.design.feasibility.max_step_triangles`, exact: the area is quadratic
 in the step). Backtracking (Armijo) from that cap; a trial whose elastic or electrostatic
-solve fails is halved like one that does not decrease J. Accepted iterates are therefore
-never overlapping, outside the sheet or inverted.
+solve fails is halved like one that does not decrease J, and one whose outline terms
+alone rise beyond what the capacitances can gain is halved without being simulated
+(``screen_trials``, :data:`SCREEN_FACTOR`). Accepted iterates are therefore never
+overlapping, outside the sheet or inverted.
 
 After each accepted step the minimum 2D angle of both meshes is checked; below
 ``remesh_angle_deg`` or below half the freshly meshed minimum, whichever is smaller (gmsh
@@ -53,6 +55,15 @@ log = logging.getLogger(__name__)
 #: tets was cut at least 8x by the mesh, not by J: the sheet is remeshed after it
 #: (wrist_quick: steps of 0.003-0.03 mm against 0.2-0.7 mm before, docs/optimize.md).
 MESH_LIMITED = 3
+
+#: A line-search trial is rejected before it is simulated when its outline terms alone
+#: (barrier, smoothing) rise by more than this many times the first-order gain of the
+#: capacitance term d along the step, plus Armijo's margin: J = −d + outline terms could
+#: then only fall enough if d gained more than twice its linear prediction. On a paper
+#: poking start (30 steps) 20 of the 21 rejected trials had their outline terms rise by
+#: 2.2–555 times the step's whole predicted decrease, the accepted ones by at most 1.2
+#: times (docs/optimize.md, "Screening line-search trials"). ``[optimizer] screen_trials``.
+SCREEN_FACTOR = 2.0
 
 #: Failures of a trial design that mean "step too long", not "bug".
 _TRIAL_ERRORS = (ElasticError, ElectrostaticError, GeometryError, LinearSolveError, MeshError)
@@ -192,11 +203,14 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                         p *= step_length / speed
                         speed = step_length
                     cap = min(1.0, settings.max_step_mm / speed)
-                    trial, alpha, evaluations, inverted = _line_search(design, e, g, p, cap)
+                    trial, alpha, tries, evaluations, inverted = _line_search(design, e, g, p, cap,
+                                                                              settings.screen_trials)
                     if trial is None and memory.pairs:
                         memory.reset()
                         p = -g * (settings.first_step_mm / float(np.linalg.norm(g, axis=1).max()))
-                        trial, alpha, more, more_inverted = _line_search(design, e, g, p, 1.0)
+                        trial, alpha, more_tries, more, more_inverted = _line_search(design, e, g, p, 1.0,
+                                                                                     settings.screen_trials)
+                        tries += more_tries
                         evaluations += more
                         inverted += more_inverted
                     if trial is None and inverted and history[-1].event != "remesh":
@@ -214,7 +228,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                         iteration += 1
                         level_iterations += 1
                         step = alpha * float(np.linalg.norm(p, axis=1).max())
-                        step_length = min(settings.max_step_mm, 2 * step if evaluations == 1 else step)
+                        step_length = min(settings.max_step_mm, 2 * step if tries == 1 else step)
                         record("step", step, evaluations)
                         if checkpoint is not None and not checkpoint(history[-1]):
                             converged, reason = True, "pruned"
@@ -275,24 +289,41 @@ def _gradient(design: Design, e: Evaluation) -> np.ndarray:
 
 
 def _line_search(design: Design, e: Evaluation, g: np.ndarray, p: np.ndarray, alpha: float,
-                 max_trials: int = 8) -> tuple[Evaluation | None, float, int, int]:
+                 screen: bool = False, max_trials: int = 8) -> tuple[Evaluation | None, float, int, int, int]:
     """Backtracking (Armijo, halving) from the largest feasible ``α ≤ alpha``; returns the
-    accepted evaluation (or ``None``), α, the number of evaluations and how many of them
-    failed on inverted electrostatic tets. (Retries at the minimiser of a quadratic model
-    of J were measured and dropped: docs/optimize.md.)"""
+    accepted evaluation (or ``None``), α, the trials (the accepted one's number, else
+    ``max_trials``), the evaluations among them and how many of those failed on inverted
+    electrostatic tets. With ``screen``, a trial whose outline terms rise by more than
+    :data:`SCREEN_FACTOR` times the first-order gain of d is halved without being
+    evaluated; the α tried next is the same either way. (Retries at the minimiser of a
+    quadratic model of J were measured and dropped: docs/optimize.md.)"""
     alpha = feasible_step(design, e.q, p, alpha)
     slope = float(np.vdot(g, p))
-    inverted = 0
+    if screen:
+        geometry = design.objective.geometry
+        before = geometry.value(design.deformer.outlines(e.q))
+        # g = −∇d + ∇(outline terms): d's first-order gain per unit α is ∇(outline terms)·p − g·p.
+        gain = max(float(np.vdot(design.outline_gradient(e.q), p)) - slope, 0.0)
+    inverted = evaluations = 0
     for trial in range(1, max_trials + 1):
+        q = e.q + alpha * p
+        if screen:
+            rise = geometry.value(design.deformer.outlines(q)) - before
+            if not rise - 1e-4 * alpha * slope <= SCREEN_FACTOR * alpha * gain:
+                log.info("line search: α = %.3g screened out (outline terms +%.3g, d gains ~%.3g); halving",
+                         alpha, rise, alpha * gain)
+                alpha *= 0.5
+                continue
+        evaluations += 1
         try:
-            candidate = design.evaluate(e.q + alpha * p, warm=e)
+            candidate = design.evaluate(q, warm=e)
         except _TRIAL_ERRORS as exc:
             log.info("line search: α = %.3g failed (%s); halving", alpha, exc)
             inverted += isinstance(exc, InvertedMeshError)
             alpha *= 0.5
             continue
         if candidate.J <= e.J + 1e-4 * alpha * slope:
-            return candidate, alpha, trial, inverted
+            return candidate, alpha, trial, evaluations, inverted
         candidate.release()
         alpha *= 0.5
-    return None, 0.0, max_trials, inverted
+    return None, 0.0, max_trials, evaluations, inverted

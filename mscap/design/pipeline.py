@@ -216,14 +216,22 @@ class Design:
             else:
                 n2 = len(self.elastic_weights)
                 grad += self.elastic_weights.T @ g_elastic.reshape(-1, n2, 3)[:, :, :2].sum(axis=0)
-        # Geometry part: outline vertices are fine-mesh vertices.
-        g2d = np.zeros((len(self.deformer.rest2d), 2))
-        for chain, g in zip(self.deformer.outline_vertices, dJ_doutlines):
-            np.add.at(g2d, chain, g)
-        grad += self.deformer.vjp(g2d)
+        grad += self.outline_gradient(e.q, dJ_doutlines)
         if not np.isfinite(grad).all():
             raise DesignError(f"dJ/dq is not finite ({int((~np.isfinite(grad)).sum())} entries)")
         return grad
+
+    def outline_gradient(self, q, dJ_doutlines=None) -> np.ndarray:
+        """The outline part of ``dJ/dq`` ``(c, 2)``: ``w_b (B + B_area) + w_s S``
+        (:attr:`LayoutObjective.geometry`) through the controls, no simulation; given
+        ``dJ_doutlines`` (one ``(n_j, 2)`` per outline), from those."""
+        if dJ_doutlines is None:
+            dJ_doutlines = self.objective.geometry.value_and_gradient(self.deformer.outlines(q))[1]
+        # Outline vertices are fine-mesh vertices.
+        g2d = np.zeros((len(self.deformer.rest2d), 2))
+        for chain, g in zip(self.deformer.outline_vertices, dJ_doutlines):
+            np.add.at(g2d, chain, g)
+        return self.deformer.vjp(g2d)
 
     def refined(self, q) -> "Design":
         """Twice the control points (:meth:`Deformer.refined`) on the geometry at ``q``:

@@ -263,7 +263,10 @@ class OptimizerSettings:
     curvature pairs carry over to the new mesh (``false``: restart them, the behaviour
     before 2026-12-04). ``min_feature_mm``: the narrowest neck or slot a plate may have
     (0: no limit), a barrier like the gap's between two parts of one outline
-    (:class:`mscap.design.objective.SeparationBarrier`)."""
+    (:class:`mscap.design.objective.SeparationBarrier`). ``screen_trials``: a line-search
+    trial whose outline terms alone rise by more than twice what the capacitance term can
+    gain to first order is rejected before it is simulated
+    (:data:`mscap.design.optimizer.SCREEN_FACTOR`; ``false``: simulate every trial)."""
 
     distance: str = "pF"
     tau_pF2: float = 1.0
@@ -287,6 +290,7 @@ class OptimizerSettings:
     remesh_angle_deg: float = 10.0
     keep_memory_at_remesh: bool = True
     min_feature_mm: float = 0.0
+    screen_trials: bool = True
 
 
 @dataclass(frozen=True)

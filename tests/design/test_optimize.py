@@ -25,7 +25,7 @@ from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import check_layout
 from mscap.scene import load_scene
 from tests.conftest import grid_trimesh, to_toml
-from tests.scenes import scene_dict
+from tests.scenes import QUICK, scene_dict
 
 pytest.importorskip("igl")
 
@@ -187,14 +187,74 @@ def test_line_search_counts_the_trials_the_mesh_stopped(monkeypatch):
     start = dataclasses.make_dataclass("E", [("J", float), ("q", object)])(1.0, np.zeros((1, 2)))
     g, p = np.array([[-2.0, 0.0]]), np.array([[1.0, 0.0]])  # J'(0) along p: -2
     line = Line()
-    accepted, alpha, evaluations, inverted = _line_search(line, start, g, p, 1.0)
-    assert line.tried == [1.0, 0.5, 0.25, 0.125] and evaluations == 4 and inverted == 0
+    accepted, alpha, trials, evaluations, inverted = _line_search(line, start, g, p, 1.0)
+    assert line.tried == [1.0, 0.5, 0.25, 0.125] and trials == evaluations == 4 and inverted == 0
     assert accepted.J == pytest.approx(1 - 0.25 + 10 / 64)
     line = Line(fail=(1.0, 0.5))
-    _, alpha, evaluations, inverted = _line_search(line, start, g, p, 1.0)
+    _, alpha, trials, evaluations, inverted = _line_search(line, start, g, p, 1.0)
     assert line.tried == [1.0, 0.5, 0.25, 0.125] and inverted == 2
     line = Line(fail=tuple(0.5 ** n for n in range(8)))
-    assert _line_search(line, start, g, p, 1.0) == (None, 0.0, 8, 8)
+    assert _line_search(line, start, g, p, 1.0) == (None, 0.0, 8, 8, 8)
+
+
+def test_screening_skips_the_trials_the_outline_terms_reject(monkeypatch):
+    """J(α) = −d + G = 1 − 2α + 10α², the capacitance term gaining d = 2α and the outline
+    terms G = 10α² (flat at α = 0: d's first-order gain is 2 per unit α). α = 1 and 0.5
+    raise G by 10 and 2.5, more than twice d's gain (4, 2): screened, not evaluated. α =
+    0.25 (G +0.625 ≤ 1) is evaluated and fails Armijo, 0.125 is accepted: the same α, J and
+    trial count as without screening, in 2 evaluations instead of 4."""
+    from mscap.design import optimizer
+
+    monkeypatch.setattr(optimizer, "feasible_step", lambda design, q, p, alpha: alpha)
+
+    class Geometry:
+        def value(self, outlines):
+            return 10 * float(outlines) ** 2
+
+    class Line:
+        objective = dataclasses.make_dataclass("O", [("geometry", object)])(Geometry())
+        deformer = dataclasses.make_dataclass("D", [], namespace={"outlines": lambda self, q: q[0, 0]})()
+
+        def __init__(self):
+            self.tried = []
+
+        def outline_gradient(self, q):
+            return np.array([[20 * float(q[0, 0]), 0.0]])
+
+        def evaluate(self, q, warm=None):
+            alpha = float(q[0, 0])
+            self.tried.append(alpha)
+            return dataclasses.make_dataclass("E", [("J", float), ("q", object)], namespace={
+                "release": lambda self: None})(1 - 2 * alpha + 10 * alpha ** 2, q)
+
+    start = dataclasses.make_dataclass("E", [("J", float), ("d", float), ("q", object)])(1.0, 1.0, np.zeros((1, 2)))
+    g, p = np.array([[-2.0, 0.0]]), np.array([[1.0, 0.0]])
+    plain, screened = Line(), Line()
+    without = _line_search(plain, start, g, p, 1.0, screen=False)
+    with_ = _line_search(screened, start, g, p, 1.0, screen=True)
+    assert plain.tried == [1.0, 0.5, 0.25, 0.125] and screened.tried == [0.25, 0.125]
+    assert with_[1:] == (0.125, 4, 2, 0) and without[1:] == (0.125, 4, 4, 0)
+    assert with_[0].J == without[0].J == pytest.approx(1 - 0.25 + 10 / 64)
+
+
+def test_screening_leaves_the_path_as_it_was(tmp_path):
+    """``screen_trials`` skips only trials Armijo would reject. On jobs/quick.toml's scene
+    (P2 elasticity, as shipped) the line searches of steps 4 and 5 try α at which the
+    outline terms rise by 0.1–2.9, 10–80 times what d can gain: screened, the two runs take
+    the same 5 steps to the same J with 3 evaluations fewer. (On the seven quick scenes and
+    five paper ones every path was the same, in 0.46–0.98 of the evaluations:
+    docs/optimize.md, "Screening line-search trials".)"""
+    path = tmp_path / "quick.toml"
+    path.write_text(QUICK.replace("[elastic]\n", "[elastic]\norder = 2\n", 1))
+    scene = load_scene(path)
+    runs = {}
+    for screen in (False, True):
+        settings = dataclasses.replace(scene.optimizer, screen_trials=screen)
+        runs[screen] = optimize(build_design(dataclasses.replace(scene, optimizer=settings)), max_iterations=5,
+                                cascade_levels=0)
+    off, on = runs[False], runs[True]
+    assert [r.J for r in on.history] == [r.J for r in off.history]
+    assert sum(r.evaluations for r in on.history) == sum(r.evaluations for r in off.history) - 3
 
 
 def test_plateau_compares_J_with_its_value_window_steps_back():
