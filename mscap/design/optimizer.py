@@ -308,7 +308,10 @@ def _line_search(design: Design, e: Evaluation, g: np.ndarray, p: np.ndarray, al
     for trial in range(1, max_trials + 1):
         q = e.q + alpha * p
         if screen:
-            rise = geometry.value(design.deformer.outlines(q)) - before
+            try:
+                rise = geometry.value(design.deformer.outlines(q)) - before
+            except _TRIAL_ERRORS:  # the evaluation below says why, as without screening
+                rise = -np.inf
             if not rise - 1e-4 * alpha * slope <= SCREEN_FACTOR * alpha * gain:
                 log.info("line search: α = %.3g screened out (outline terms +%.3g, d gains ~%.3g); halving",
                          alpha, rise, alpha * gain)
