@@ -242,7 +242,7 @@ def test_screening_leaves_the_path_as_it_was(tmp_path):
     (P2 elasticity, as shipped) the line searches of steps 4 and 5 try α at which the
     outline terms rise by 0.1–2.9, 10–80 times what d can gain: screened, the two runs take
     the same 5 steps to the same J with 3 evaluations fewer. (On the seven quick scenes and
-    five paper ones every path was the same, in 0.46–0.98 of the evaluations:
+    all seven paper ones every path was the same, in 0.43–0.98 of the evaluations:
     docs/optimize.md, "Screening line-search trials".)"""
     path = tmp_path / "quick.toml"
     path.write_text(QUICK.replace("[elastic]\n", "[elastic]\norder = 2\n", 1))
