@@ -301,7 +301,7 @@ def _line_search(design: Design, e: Evaluation, g: np.ndarray, p: np.ndarray, al
     slope = float(np.vdot(g, p))
     if screen:
         geometry = design.objective.geometry
-        before = geometry.value(design.deformer.outlines(e.q))
+        before = e.J + e.d  # J = −d + the outline terms
         # g = −∇d + ∇(outline terms): d's first-order gain per unit α is ∇(outline terms)·p − g·p.
         gain = max(float(np.vdot(design.outline_gradient(e.q), p)) - slope, 0.0)
     inverted = evaluations = 0

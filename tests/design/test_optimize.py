@@ -198,7 +198,7 @@ def test_line_search_counts_the_trials_the_mesh_stopped(monkeypatch):
 
 
 def test_screening_skips_the_trials_the_outline_terms_reject(monkeypatch):
-    """J(α) = −d + G = 1 − 2α + 10α², the capacitance term gaining d = 2α and the outline
+    """J(α) = −d + G = 1 − 2α + 10α², the capacitance term d = −1 + 2α and the outline
     terms G = 10α² (flat at α = 0: d's first-order gain is 2 per unit α). α = 1 and 0.5
     raise G by 10 and 2.5, more than twice d's gain (4, 2): screened, not evaluated. α =
     0.25 (G +0.625 ≤ 1) is evaluated and fails Armijo, 0.125 is accepted: the same α, J and
@@ -227,7 +227,7 @@ def test_screening_skips_the_trials_the_outline_terms_reject(monkeypatch):
             return dataclasses.make_dataclass("E", [("J", float), ("q", object)], namespace={
                 "release": lambda self: None})(1 - 2 * alpha + 10 * alpha ** 2, q)
 
-    start = dataclasses.make_dataclass("E", [("J", float), ("d", float), ("q", object)])(1.0, 1.0, np.zeros((1, 2)))
+    start = dataclasses.make_dataclass("E", [("J", float), ("d", float), ("q", object)])(1.0, -1.0, np.zeros((1, 2)))
     g, p = np.array([[-2.0, 0.0]]), np.array([[1.0, 0.0]])
     plain, screened = Line(), Line()
     without = _line_search(plain, start, g, p, 1.0, screen=False)
