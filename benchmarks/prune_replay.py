@@ -138,17 +138,13 @@ def blind_odds(runs, kind: str, leave_out=frozenset(), fraction: float = 1 / 3,
     this well; one whose early scores rank the ends (rank correlation near +1) better.
     ``error``: the score error to use for every k (files written before the finer-mesh
     bound was stored have none)."""
+    value = (lambda r: r.bound_mm) if kind == "bound" else (lambda r: -r.metric)  # lower is better
     out = {}
     for k in sorted({r.k for r in runs}):
         mine = [r for r in runs if r.k == k and r.id not in leave_out]
-        if kind == "bound":
-            best = min(mine, key=lambda r: r.bound_mm)
-            tol = score_error(kind, best) if error is None else error
-            near = [r for r in mine if r.bound_mm <= best.bound_mm * (1 + tol)]
-        else:
-            best = max(mine, key=lambda r: r.metric)
-            tol = score_error(kind, best) if error is None else error
-            near = [r for r in mine if r.metric >= best.metric * (1 - tol)]
+        best = min(mine, key=value)
+        tol = score_error(kind, best) if error is None else error
+        near = [r for r in mine if value(r) <= value(best) + tol * abs(value(best))]
         if not near:  # no finer-mesh score stored
             continue
         n, w = len(mine), len(near)
@@ -239,11 +235,7 @@ def main() -> None:
             print(f"| {label} | {cost:.2f} | " + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks)
                   + " |")
     if kind != "J":
-        for every in (3, 5, 10):
-            cost, loss = replay(runs, kind, PruneRule(every, envelope=True), leave_out, args.lean_checks)
-            label = f"envelope every {every} steps"
-            print(f"| {label} | {cost:.2f} | " + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks)
-                  + " |")
+        print_envelope_rows(runs, kind, ks, leave_out, args.lean_checks)
     odds = blind_odds(runs, kind, leave_out, error=args.score_error)
     print("\nstarts within their score's finer-mesh error of the best, and the odds that a third of the starts, "
           "picked blindly, hold one:")
@@ -261,7 +253,7 @@ def main() -> None:
 def on_top(file: str, scene_file: str, runs, lean_checks: bool) -> None:
     """``--on-top``: the envelope rule every 3, 5, 10 steps on a pruned file's finished starts."""
     from mscap.scene import load_scene
-    from mscap.service.pruning import PruneRule, score_kind
+    from mscap.service.pruning import score_kind
 
     kind = score_kind(load_scene(scene_file))
     if kind == "J":
@@ -271,8 +263,15 @@ def on_top(file: str, scene_file: str, runs, lean_checks: bool) -> None:
           f"to the file as it ran")
     print("| rule on top of the stored one | cost | " + " | ".join(f"loss k = {k}" for k in ks) + " |")
     print("|---|---|" + "---|" * len(ks))
+    print_envelope_rows(runs, kind, ks, lean_checks=lean_checks)
+
+
+def print_envelope_rows(runs, kind: str, ks, leave_out=frozenset(), lean_checks: bool = False) -> None:
+    """One table row per envelope rule, checking every 3, 5, 10 steps: cost and loss per k."""
+    from mscap.service.pruning import PruneRule
+
     for every in (3, 5, 10):
-        cost, loss = replay(runs, kind, PruneRule(every, envelope=True), lean_checks=lean_checks)
+        cost, loss = replay(runs, kind, PruneRule(every, envelope=True), leave_out, lean_checks)
         print(f"| envelope every {every} steps | {cost:.2f} | "
               + " | ".join(f"{100 * loss.get(k, math.nan):.1f} %" for k in ks) + " |")
 
