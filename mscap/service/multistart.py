@@ -47,6 +47,7 @@ from mscap.mesh.budget import check_scene
 from mscap.service.accuracy import Equilibria, estimate_error, finer
 from mscap.design.readback import ReconstructionBound
 from mscap.service import farm
+from mscap.service.forecast import Forecast, duration
 from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
 from mscap.service.pruning import Envelope, PruneRule, Rungs, Verdict, history_values, prune_rule, score, \
     score_kind
@@ -283,7 +284,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             [CheckTask(read_run(store, row.best_run)) for row in selection().per_k
              if row.best_run in selected and math.isnan(summaries[row.best_run].finer_metric)]
         todo = todo + pending
-        total, started = len(todo), time.perf_counter()
+        total, forecast = len(todo), Forecast(todo, max(size - 1, 1))
         say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
             f"worker{'s' if size > 2 else ''}")
         if pending:
@@ -305,8 +306,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             write_selection(store, selection())
             done += 1
             failed += not rec.ok
-            elapsed = time.perf_counter() - started
-            eta = elapsed / done * (total - done)
+            forecast.finished(rec.id, rec.wall_s, pruned=rec.status == "pruned")
             metric = f"{rec.metric:.4g} pF" if rec.ok else rec.error.splitlines()[0][:80]
             if rec.ok and math.isfinite(rec.bound_mm):
                 metric += f", read-back bound {rec.initial_bound_mm:.3g} -> {rec.bound_mm:.3g} mm"
@@ -316,7 +316,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
                 metric += (f" (no finer-mesh check: {beaten[rec.id]} of its k is better)" if rec.id in beaten else
                            " (no finer-mesh check: it failed, or the job is stopping)")
             say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
-                f"{total - done} left, ETA {eta:.0f} s")
+                f"{total - done} left, ETA {duration(forecast.seconds_left(running()))}")
 
         beaten = {}  # run -> the run of its k that beat it before its check
 
@@ -329,7 +329,16 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             heartbeat.update(progress)
             return rungs.decide(progress.k, progress.iteration, progress.score) if progress.rung else None
 
-        execute(todo, record, answer, heartbeat.tick)
+        def tick(busy: dict) -> None:  # the farm's own dict of the tasks in flight
+            in_flight[0] = busy
+            heartbeat.tick(busy)
+
+        def running() -> dict[str, float]:
+            now = time.monotonic()  # the farm's clock
+            return {getattr(task, "id", ""): now - since for task, since in in_flight[0].values()}
+
+        in_flight: list[dict] = [{}]
+        execute(todo, record, answer, tick)
         final = selection()
         write_selection(store, final)  # also when nothing was left to do
     finally:

@@ -79,6 +79,10 @@ def test_three_ranks_write_a_complete_file(three_ranks, capsys):
     # start per worker), so no k = 2 start can finish before a k = 3 one.
     progress = [line for line in done.stderr.splitlines() if line.startswith("[")]
     assert len(progress) == 4 and progress[0].startswith("[1/4] k3_")
+    # Each ends with the runs left and the ETA (mscap.service.forecast), known from the
+    # first finished run on and nothing after the last.
+    assert all(re.search(r"\d left, ETA (\d+ s|\d+ min|\d+ h \d\d min)$", line) for line in progress), progress
+    assert progress[-1].endswith("0 left, ETA 0 s")
     assert main(["inspect", str(out), "--json"]) == 0
     table = json.loads(capsys.readouterr().out)
     assert table["runs_total"] == 4 and table["chosen_k"] in (2, 3)

@@ -1,0 +1,126 @@
+"""How long a multi-start has left: each task's cost expected from the finished tasks like it.
+
+``elapsed / done × left`` assumes every task left costs what the mean finished one did. A
+pruned multi-start is not like that: a start either runs to its end or stops at a rung at
+a tenth of the cost (poking_quick: 43–65 s against 5–8 s), a start's cost grows with k, and
+the master hands out the largest k first, so what has finished early is no sample of what
+is left. :class:`Forecast` expects a start left to cost
+
+    p · F + (1 − p) · P,
+
+``F`` and ``P`` the mean wall times of the finished starts of its k that ran to their end
+and that were pruned (else those of the nearest k that has any), ``p`` the share of all
+finished starts that ran to their end. A finer-mesh check is expected like the checks
+done, else like a start of its k that ran to its end. A start in flight for ``t`` seconds
+has the outcomes longer than ``t`` left, less ``t`` (one that has outlived the pruned
+starts runs to its end). The job's rate is its workers (the farm keeps them busy: 0.94 of
+the time on 2 workers, docs/performance.md §4). Splitting the share by initial layout
+(Lloyd starts, which start best, finish more often) did worse on a 25-start run where
+random starts of the smallest k finished too; ``benchmarks/eta_replay.py`` measures the
+forecasts on a stored run (docs/performance.md §8).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from typing import Iterable
+
+__all__ = ["Forecast", "task_kind", "duration"]
+
+
+def task_kind(task) -> tuple[str, int]:
+    """``("start", k)`` of a start, ``("check", k)`` of a finer-mesh check (a task with a
+    stored ``record``)."""
+    record = getattr(task, "record", None)
+    if record is not None:
+        return "check", int(record.k)
+    return "start", int(task.k)
+
+
+class Forecast:
+    """Seconds left for ``tasks`` (objects with an ``id``; :func:`task_kind` of each) on
+    ``workers`` workers; :meth:`finished` records one task's wall time (s)."""
+
+    def __init__(self, tasks: Iterable, workers: int):
+        self.workers = max(int(workers), 1)
+        self.left: dict[str, tuple[str, int]] = {task.id: task_kind(task) for task in tasks}
+        #: wall times by (kind, k, pruned)
+        self.walls: dict[tuple[str, int, bool], list[float]] = defaultdict(list)
+
+    def finished(self, task_id: str, wall_s: float, pruned: bool = False,
+                 kind: tuple[str, int] | None = None) -> None:
+        """``task_id`` is done after ``wall_s`` seconds of a worker, ``pruned`` or not
+        (``kind``: its :func:`task_kind`, if it was not one of ``tasks``)."""
+        kind = self.left.pop(task_id, kind)
+        if kind is not None and math.isfinite(wall_s) and wall_s >= 0:
+            self.walls[(*kind, bool(pruned))].append(float(wall_s))
+
+    def _cost(self, kind: str, k: int, pruned: bool) -> float | None:
+        """Mean wall time of the tasks of ``kind`` and ``pruned`` at the nearest k to ``k``
+        that has any (both on a tie)."""
+        alike = [key for key, walls in self.walls.items() if walls and key[0] == kind and key[2] == pruned]
+        if not alike:
+            return None
+        nearest = min(abs(key[1] - k) for key in alike)
+        return _mean([w for key in alike if abs(key[1] - k) == nearest for w in self.walls[key]])
+
+    def outcomes(self, kind: tuple[str, int]) -> list[tuple[float, float]]:
+        """``[(probability, wall time s)]`` of a task of ``kind``: a start runs to its end
+        or is pruned; empty before any task finished."""
+        what, k = kind
+        full = self._cost("start", k, False)
+        if what == "check":
+            cost = self._cost("check", k, False)
+            cost = cost if cost is not None else full
+            return [] if cost is None else [(1.0, cost)]
+        cut = self._cost("start", k, True)
+        if full is None or cut is None:
+            cost = full if full is not None else cut
+            cost = cost if cost is not None else self._cost("check", k, False)
+            return [] if cost is None else [(1.0, cost)]
+        count = {False: 0, True: 0}  # finished starts by pruned, over every k
+        for (task, _, pruned), walls in self.walls.items():
+            if task == "start":
+                count[pruned] += len(walls)
+        p = count[False] / (count[False] + count[True])
+        return [(p, full), (1.0 - p, cut)]
+
+    def expected(self, kind: tuple[str, int], elapsed: float = 0.0) -> float | None:
+        """Expected wall time (s) still to come of a task of ``kind`` that has run for
+        ``elapsed`` s (0: not started): the outcomes it can still have, weighed by their
+        probabilities; ``None`` before any task finished."""
+        outcomes = self.outcomes(kind)
+        if not outcomes:
+            return None
+        later = [(p, cost - elapsed) for p, cost in outcomes if cost > elapsed and p > 0]
+        if not later:  # it has already run longer than any task of its kind
+            return 0.0
+        return sum(p * rest for p, rest in later) / sum(p for p, _ in later)
+
+    def seconds_left(self, running: dict[str, float] | None = None) -> float | None:
+        """Expected wall time (s) until every task left is done: their expected costs
+        shared by the workers, and never less than the longest one; ``running`` maps the
+        tasks in flight to how long they have run (s). ``None`` while no task has
+        finished (nothing to expect from)."""
+        running = running or {}
+        costs = [self.expected(kind, running.get(tid, 0.0)) for tid, kind in self.left.items()]
+        if None in costs:
+            return None
+        return max(sum(costs) / self.workers, max(costs, default=0.0))
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values)
+
+
+def duration(seconds: float | None) -> str:
+    """``seconds`` for a progress line: ``"42 s"``, ``"17 min"``, ``"3 h 05 min"``, or
+    ``"unknown"`` (``None``: nothing to expect from yet)."""
+    if seconds is None or not math.isfinite(seconds):
+        return "unknown"
+    seconds = max(seconds, 0.0)
+    if seconds < 100:
+        return f"{seconds:.0f} s"
+    minutes = round(seconds / 60)
+    return f"{minutes} min" if minutes < 100 else f"{minutes // 60} h {minutes % 60:02d} min"

@@ -1,0 +1,127 @@
+"""The multi-start's ETA: each task left expected at the cost of the finished tasks of its k,
+a start running to its end or pruned (mscap/service/forecast.py)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytest
+
+from mscap.service.forecast import Forecast, duration, task_kind
+from mscap.service.selection import StartConfig
+
+
+@dataclass(frozen=True)
+class _Check:  # a finer-mesh check task: a stored run's record
+    record: StartConfig
+
+    @property
+    def id(self) -> str:
+        return f"check {self.record.id}"
+
+
+def _starts(k: int, lloyd: int, random: int) -> list[StartConfig]:
+    return ([StartConfig(k, k * 1000 + i, "lloyd") for i in range(lloyd)]
+            + [StartConfig(k, k * 1000 + lloyd + i, "random") for i in range(random)])
+
+
+def test_task_kinds():
+    start = StartConfig(4, 4003, "random")
+    assert task_kind(start) == ("start", 4)
+    assert task_kind(_Check(start)) == ("check", 4)
+
+
+def test_a_start_either_finishes_or_is_pruned():
+    """1 of the 4 finished starts ran to its end: a start left is expected to cost 1/4 of a
+    whole start of its k and 3/4 of a pruned one; one worker does them one after another."""
+    tasks = _starts(4, lloyd=2, random=6)
+    forecast = Forecast(tasks, workers=1)
+    assert forecast.seconds_left() is None  # nothing finished: nothing to expect from
+    forecast.finished(tasks[0].id, 100.0)
+    for task in tasks[2:5]:
+        forecast.finished(task.id, 10.0, pruned=True)
+    p, full, cut = 0.25, 100.0, 10.0
+    assert forecast.outcomes(("start", 4)) == [(p, full), (1 - p, cut)]
+    assert forecast.seconds_left() == pytest.approx(4 * (p * full + (1 - p) * cut), rel=1e-15)
+
+
+def test_each_k_costs_what_its_own_starts_cost():
+    """Largest k first: k = 3's starts (90 s whole, 9 s pruned) say nothing of k = 2's once
+    two of those finished (30 s, 3 s): the two left are expected at 16.5 s each, where
+    elapsed / done × left says 66 s; before any k = 2 start finished, k = 3's costs stand in."""
+    tasks = _starts(3, 0, 2) + _starts(2, 0, 4)
+    forecast = Forecast(tasks, workers=1)
+    forecast.finished(tasks[0].id, 90.0)
+    forecast.finished(tasks[1].id, 9.0, pruned=True)
+    assert forecast.expected(("start", 2)) == pytest.approx(0.5 * 90 + 0.5 * 9, rel=1e-15)
+    forecast.finished(tasks[2].id, 30.0)
+    forecast.finished(tasks[3].id, 3.0, pruned=True)
+    assert forecast.seconds_left() == pytest.approx(2 * (0.5 * 30 + 0.5 * 3), rel=1e-15)
+    assert (90 + 9 + 30 + 3) / 4 * 2 == 66.0  # the old ETA: twice the forecast
+
+
+def test_the_nearest_k_stands_in_for_one_not_seen():
+    """k = 6 and 2 finished, k = 4 not yet: both are 2 away and both stand in; k = 5 is
+    nearest to 6."""
+    tasks = _starts(6, 0, 2) + _starts(5, 0, 1) + _starts(4, 0, 1) + _starts(2, 0, 2)
+    forecast = Forecast(tasks, workers=1)
+    forecast.finished(tasks[0].id, 300.0)
+    forecast.finished(tasks[1].id, 20.0, pruned=True)
+    forecast.finished(tasks[4].id, 100.0)
+    forecast.finished(tasks[5].id, 10.0, pruned=True)
+    assert forecast.outcomes(("start", 4)) == [(0.5, 200.0), (0.5, 15.0)]
+    assert forecast.outcomes(("start", 5)) == [(0.5, 300.0), (0.5, 20.0)]
+    assert forecast.seconds_left() == pytest.approx(0.5 * 215 + 0.5 * 320, rel=1e-15)
+
+
+def test_a_start_in_flight_has_its_remaining_outcomes_left():
+    """A start that has run 30 s has outlived every pruned start (20 s): it runs to its end,
+    170 s more; at 5 s it may still be pruned."""
+    tasks = _starts(3, 0, 3)
+    forecast = Forecast(tasks, workers=1)
+    forecast.finished(tasks[0].id, 200.0)
+    forecast.finished(tasks[1].id, 20.0, pruned=True)
+    assert forecast.expected(("start", 3), elapsed=30.0) == pytest.approx(170.0, rel=1e-15)
+    assert forecast.expected(("start", 3), elapsed=5.0) == pytest.approx(0.5 * 195 + 0.5 * 15, rel=1e-15)
+    assert forecast.expected(("start", 3), elapsed=250.0) == 0.0  # longer than any: about to end
+    assert forecast.seconds_left({tasks[2].id: 30.0}) == pytest.approx(170.0, rel=1e-15)
+
+
+def test_workers_share_the_work_but_not_a_task():
+    tasks = _starts(3, lloyd=1, random=4)
+    forecast = Forecast(tasks, workers=2)
+    forecast.finished(tasks[1].id, 30.0)
+    forecast.finished(tasks[2].id, 50.0)
+    assert forecast.seconds_left() == pytest.approx(3 * 40.0 / 2, rel=1e-15)  # three of 40 s on two workers
+    forecast.finished(tasks[3].id, 40.0)
+    forecast.finished(tasks[4].id, 40.0)
+    assert forecast.seconds_left() == pytest.approx(40.0, rel=1e-15)  # one left: two workers do not halve it
+    forecast.finished(tasks[0].id, 40.0)
+    assert forecast.seconds_left() == 0.0
+
+
+def test_a_check_is_expected_like_the_checks_else_like_a_whole_start_of_its_k():
+    start = StartConfig(4, 4000, "lloyd")
+    check = _Check(start)
+    forecast = Forecast([start, StartConfig(4, 4001, "random"), check], workers=1)
+    forecast.finished(start.id, 120.0)
+    forecast.finished("k4_s4001_random", 12.0, pruned=True)
+    assert forecast.expected(task_kind(check)) == pytest.approx(120.0, rel=1e-15)
+    forecast.finished("an earlier check", 30.0, kind=("check", 2))
+    assert forecast.expected(task_kind(check)) == pytest.approx(30.0, rel=1e-15)
+
+
+def test_a_failed_wall_time_is_not_a_cost():
+    tasks = _starts(2, 0, 3)
+    forecast = Forecast(tasks, workers=1)
+    forecast.finished(tasks[0].id, float("nan"))
+    assert forecast.seconds_left() is None
+    forecast.finished(tasks[1].id, 8.0)
+    assert forecast.seconds_left() == pytest.approx(8.0, rel=1e-15)
+
+
+@pytest.mark.parametrize("seconds, text", [(None, "unknown"), (float("nan"), "unknown"), (-3.0, "0 s"),
+                                           (42.4, "42 s"), (99.4, "99 s"), (1000.0, "17 min"),
+                                           (5999.0, "1 h 40 min"), (11100.0, "3 h 05 min")])
+def test_durations_read_as_people_say_them(seconds, text):
+    assert duration(seconds) == text
