@@ -38,9 +38,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("file", help="a multi-start results file (every start of the scene stored)")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--prune", default="3:4", help="the run's rung rule STEP:ETA (default 3:4; 0: none)")
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
     from mscap.service.forecast import Forecast, duration
+    from mscap.service.pruning import PruneRule
     from mscap.service.selection import StartConfig
     from mscap.service.store import finished_ids, read_run, read_store
 
@@ -51,10 +53,11 @@ def main() -> None:
     cost = {rid: float(r.wall_s) for rid, r in records.items()}
     finishes = replay(tasks, cost, args.workers)
     end = finishes[-1][2]
-    forecast = Forecast(tasks, args.workers)
+    step, _, eta = args.prune.partition(":")
+    forecast = Forecast(tasks, args.workers, PruneRule(int(step), int(eta or 3)))
     rows, errors = [], {"old": [], "new": []}
     for done, (rid, _, now) in enumerate(finishes, start=1):
-        forecast.finished(rid, cost[rid], pruned=records[rid].status == "pruned")
+        forecast.finished(rid, cost[rid], pruned=records[rid].status == "pruned", history=records[rid].history)
         left = len(finishes) - done
         if not left:
             break

@@ -9,15 +9,19 @@ is left. :class:`Forecast` expects a start left to cost
     p · F + (1 − p) · P,
 
 ``F`` and ``P`` the mean wall times of the finished starts of its k that ran to their end
-and that were pruned (else those of the nearest k that has any), ``p`` the share of all
-finished starts that ran to their end. A finer-mesh check is expected like the checks
-done, else like a start of its k that ran to its end. A start in flight for ``t`` seconds
-has the outcomes longer than ``t`` left, less ``t`` (one that has outlived the pruned
-starts runs to its end). The job's rate is its workers (the farm keeps them busy: 0.94 of
-the time on 2 workers, docs/performance.md §4). Splitting the share by initial layout
-(Lloyd starts, which start best, finish more often) did worse on a 25-start run where
-random starts of the smallest k finished too; ``benchmarks/eta_replay.py`` measures the
-forecasts on a stored run (docs/performance.md §8).
+and that were pruned (else those of the nearest k that has any; before any start was
+pruned, ``P`` is what the whole ones took to the first rung, from their histories), ``p``
+the share of all finished starts that ran to their end, weighed against the pruning
+rule's own share (:func:`prior_share`: ``1/eta``, what a rung keeps) as
+:data:`PRIOR_STARTS` starts, so that the first whole starts to finish do not say that
+every start will. A finer-mesh check is expected like the checks done, else like a start
+of its k that ran to its end. A start in flight for ``t`` seconds has the outcomes
+longer than ``t`` left, less ``t`` (one that has outlived the pruned starts runs to its
+end). The job's rate is its workers (the farm keeps them busy: 0.94 of the time on 2
+workers, docs/performance.md §4). Splitting the share by initial layout (Lloyd starts,
+which start best, finish more often) did worse on a 25-start run where random starts of
+the smallest k finished too; ``benchmarks/eta_replay.py`` measures the forecasts on a
+stored run (docs/performance.md §8).
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ import math
 from collections import defaultdict
 from typing import Iterable
 
-__all__ = ["Forecast", "task_kind", "duration"]
+__all__ = ["Forecast", "task_kind", "duration", "prior_share", "first_rung_s", "PRIOR_STARTS"]
 
 
 def task_kind(task) -> tuple[str, int]:
@@ -38,32 +42,66 @@ def task_kind(task) -> tuple[str, int]:
     return "start", int(task.k)
 
 
+#: Weight, in starts, of the pruning rule's own share of starts that run to their end
+#: (:func:`prior_share`) against the share seen so far.
+PRIOR_STARTS = 4
+
+
+def prior_share(rule) -> float:
+    """The share of starts expected to run to their end before any was seen: all without
+    pruning, ``1/eta`` under a rung rule (what its first rung keeps), half under the
+    envelope rule."""
+    if rule is None or not rule.enabled:
+        return 1.0
+    return 0.5 if rule.envelope else 1.0 / rule.eta
+
+
+def first_rung_s(history, first_step: int) -> float | None:
+    """Seconds a start took to its first rung (``time_s`` of the first step with
+    ``iteration ≥ first_step``): what a start pruned there costs; ``None`` if it never got
+    there."""
+    steps = [row for row, event in enumerate(history["event"]) if str(event) == "step"
+             and int(history["iteration"][row]) >= first_step]
+    return float(history["time_s"][steps[0]]) if steps else None
+
+
 class Forecast:
     """Seconds left for ``tasks`` (objects with an ``id``; :func:`task_kind` of each) on
-    ``workers`` workers; :meth:`finished` records one task's wall time (s)."""
+    ``workers`` workers under the pruning ``rule`` (a :class:`~mscap.service.pruning.PruneRule`,
+    ``None``: none); :meth:`finished` records one task's wall time (s)."""
 
-    def __init__(self, tasks: Iterable, workers: int):
+    def __init__(self, tasks: Iterable, workers: int, rule=None):
         self.workers = max(int(workers), 1)
+        self.rule, self.prior = rule, prior_share(rule)
         self.left: dict[str, tuple[str, int]] = {task.id: task_kind(task) for task in tasks}
         #: wall times by (kind, k, pruned)
         self.walls: dict[tuple[str, int, bool], list[float]] = defaultdict(list)
+        #: seconds to the first rung of the whole starts, by k ("start", k, True)
+        self.to_rung: dict[tuple[str, int, bool], list[float]] = defaultdict(list)
 
     def finished(self, task_id: str, wall_s: float, pruned: bool = False,
-                 kind: tuple[str, int] | None = None) -> None:
+                 kind: tuple[str, int] | None = None, history=None) -> None:
         """``task_id`` is done after ``wall_s`` seconds of a worker, ``pruned`` or not
-        (``kind``: its :func:`task_kind`, if it was not one of ``tasks``)."""
+        (``kind``: its :func:`task_kind`, if it was not one of ``tasks``); the ``history``
+        of a start that ran to its end says what a start pruned at the first rung costs."""
         kind = self.left.pop(task_id, kind)
-        if kind is not None and math.isfinite(wall_s) and wall_s >= 0:
-            self.walls[(*kind, bool(pruned))].append(float(wall_s))
+        if kind is None or not math.isfinite(wall_s) or wall_s < 0:
+            return
+        self.walls[(*kind, bool(pruned))].append(float(wall_s))
+        if history is not None and not pruned and self.prior < 1.0 and not self.rule.envelope:
+            rung = first_rung_s(history, self.rule.first_step)
+            if rung is not None:
+                self.to_rung[(*kind, True)].append(rung)
 
-    def _cost(self, kind: str, k: int, pruned: bool) -> float | None:
+    def _cost(self, kind: str, k: int, pruned: bool, table=None) -> float | None:
         """Mean wall time of the tasks of ``kind`` and ``pruned`` at the nearest k to ``k``
-        that has any (both on a tie)."""
-        alike = [key for key, walls in self.walls.items() if walls and key[0] == kind and key[2] == pruned]
+        that has any (both on a tie), from ``table`` (default: the finished tasks)."""
+        table = self.walls if table is None else table
+        alike = [key for key, walls in table.items() if walls and key[0] == kind and key[2] == pruned]
         if not alike:
             return None
         nearest = min(abs(key[1] - k) for key in alike)
-        return _mean([w for key in alike if abs(key[1] - k) == nearest for w in self.walls[key]])
+        return _mean([w for key in alike if abs(key[1] - k) == nearest for w in table[key]])
 
     def outcomes(self, kind: tuple[str, int]) -> list[tuple[float, float]]:
         """``[(probability, wall time s)]`` of a task of ``kind``: a start runs to its end
@@ -75,6 +113,8 @@ class Forecast:
             cost = cost if cost is not None else full
             return [] if cost is None else [(1.0, cost)]
         cut = self._cost("start", k, True)
+        if cut is None and full is not None and self.prior < 1.0:  # no start pruned yet
+            cut = self._cost("start", k, True, self.to_rung)
         if full is None or cut is None:
             cost = full if full is not None else cut
             cost = cost if cost is not None else self._cost("check", k, False)
@@ -83,7 +123,7 @@ class Forecast:
         for (task, _, pruned), walls in self.walls.items():
             if task == "start":
                 count[pruned] += len(walls)
-        p = count[False] / (count[False] + count[True])
+        p = (count[False] + PRIOR_STARTS * self.prior) / (count[False] + count[True] + PRIOR_STARTS)
         return [(p, full), (1.0 - p, cut)]
 
     def expected(self, kind: tuple[str, int], elapsed: float = 0.0) -> float | None:

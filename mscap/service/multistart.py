@@ -284,7 +284,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             [CheckTask(read_run(store, row.best_run)) for row in selection().per_k
              if row.best_run in selected and math.isnan(summaries[row.best_run].finer_metric)]
         todo = todo + pending
-        total, forecast = len(todo), Forecast(todo, max(size - 1, 1))
+        total, forecast = len(todo), Forecast(todo, max(size - 1, 1), rule)
         say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
             f"worker{'s' if size > 2 else ''}")
         if pending:
@@ -306,7 +306,8 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             write_selection(store, selection())
             done += 1
             failed += not rec.ok
-            forecast.finished(rec.id, rec.wall_s, pruned=rec.status == "pruned")
+            forecast.finished(rec.id, rec.wall_s, pruned=rec.status == "pruned",
+                              history=rec.history if rec.status == "ok" else None)
             metric = f"{rec.metric:.4g} pF" if rec.ok else rec.error.splitlines()[0][:80]
             if rec.ok and math.isfinite(rec.bound_mm):
                 metric += f", read-back bound {rec.initial_bound_mm:.3g} -> {rec.bound_mm:.3g} mm"

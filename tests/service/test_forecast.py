@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import pytest
 
-from mscap.service.forecast import Forecast, duration, task_kind
+from mscap.service.forecast import PRIOR_STARTS, Forecast, duration, first_rung_s, prior_share, task_kind
+from mscap.service.pruning import PruneRule
 from mscap.service.selection import StartConfig
 
 
@@ -18,6 +19,13 @@ class _Check:  # a finer-mesh check task: a stored run's record
     @property
     def id(self) -> str:
         return f"check {self.record.id}"
+
+
+RULE = PruneRule(3, 4)  # --prune 3:4: the share seen is weighed with 4 starts' worth of 1/4
+
+
+def _share(ran: int, pruned: int) -> float:
+    return (ran + PRIOR_STARTS / 4) / (ran + pruned + PRIOR_STARTS)
 
 
 def _starts(k: int, lloyd: int, random: int) -> list[StartConfig]:
@@ -31,58 +39,88 @@ def test_task_kinds():
     assert task_kind(_Check(start)) == ("check", 4)
 
 
+def test_the_rules_share_and_the_time_to_its_first_rung():
+    assert prior_share(None) == prior_share(PruneRule(0, 4)) == 1.0  # no pruning: every start runs to its end
+    assert prior_share(RULE) == 0.25 and prior_share(PruneRule(5, 3, envelope=True)) == 0.5
+    history = {"event": ["start", "step", "step", "remesh", "step", "step"], "iteration": [0, 1, 2, 2, 3, 4],
+               "time_s": [2.0, 4.0, 6.0, 7.5, 9.0, 11.0]}
+    assert first_rung_s(history, 3) == 9.0
+    assert first_rung_s(history, 2) == 6.0
+    assert first_rung_s(history, 5) is None
+
+
+def test_before_any_start_is_pruned_the_rule_says_what_one_costs():
+    """One start ran to its end in 100 s and reached the first rung (step 3) at 12 s: a start
+    left costs 12 s if pruned there, and the rule's own share 1/4, weighed as 4 starts
+    against the one seen, says how likely that is."""
+    tasks = _starts(4, 1, 3)
+    forecast = Forecast(tasks, workers=1, rule=RULE)
+    history = {"event": ["start"] + ["step"] * 5, "iteration": list(range(6)),
+               "time_s": [3.0, 6.0, 9.0, 12.0, 15.0, 100.0]}
+    forecast.finished(tasks[0].id, 100.0, history=history)
+    p = (1 + 1) / (1 + 4)
+    assert _share(1, 0) == pytest.approx(p, rel=1e-15)
+    assert forecast.outcomes(("start", 4)) == [(pytest.approx(p, rel=1e-15), 100.0), (pytest.approx(1 - p, rel=1e-15), 12.0)]
+    forecast.finished(tasks[1].id, 20.0, pruned=True)  # seen: the pruned starts' own cost
+    assert forecast.outcomes(("start", 4))[1][1] == 20.0
+
+
 def test_a_start_either_finishes_or_is_pruned():
-    """1 of the 4 finished starts ran to its end: a start left is expected to cost 1/4 of a
-    whole start of its k and 3/4 of a pruned one; one worker does them one after another."""
+    """1 of the 4 finished starts ran to its end: a start left costs p of a whole start of
+    its k and 1 − p of a pruned one; one worker does them one after another."""
     tasks = _starts(4, lloyd=2, random=6)
-    forecast = Forecast(tasks, workers=1)
+    forecast = Forecast(tasks, workers=1, rule=RULE)
     assert forecast.seconds_left() is None  # nothing finished: nothing to expect from
     forecast.finished(tasks[0].id, 100.0)
     for task in tasks[2:5]:
         forecast.finished(task.id, 10.0, pruned=True)
-    p, full, cut = 0.25, 100.0, 10.0
-    assert forecast.outcomes(("start", 4)) == [(p, full), (1 - p, cut)]
+    p, full, cut = _share(1, 3), 100.0, 10.0
+    assert forecast.outcomes(("start", 4)) == [(pytest.approx(p, rel=1e-15), full), (pytest.approx(1 - p, rel=1e-15), cut)]
     assert forecast.seconds_left() == pytest.approx(4 * (p * full + (1 - p) * cut), rel=1e-15)
 
 
 def test_each_k_costs_what_its_own_starts_cost():
     """Largest k first: k = 3's starts (90 s whole, 9 s pruned) say nothing of k = 2's once
-    two of those finished (30 s, 3 s): the two left are expected at 16.5 s each, where
-    elapsed / done × left says 66 s; before any k = 2 start finished, k = 3's costs stand in."""
+    two of those finished (30 s, 3 s): the two left are expected at a fraction of what
+    elapsed / done × left says; before any k = 2 start finished, k = 3's costs stand in."""
     tasks = _starts(3, 0, 2) + _starts(2, 0, 4)
-    forecast = Forecast(tasks, workers=1)
+    forecast = Forecast(tasks, workers=1, rule=RULE)
     forecast.finished(tasks[0].id, 90.0)
     forecast.finished(tasks[1].id, 9.0, pruned=True)
-    assert forecast.expected(("start", 2)) == pytest.approx(0.5 * 90 + 0.5 * 9, rel=1e-15)
+    p = _share(1, 1)
+    assert forecast.expected(("start", 2)) == pytest.approx(p * 90 + (1 - p) * 9, rel=1e-15)
     forecast.finished(tasks[2].id, 30.0)
     forecast.finished(tasks[3].id, 3.0, pruned=True)
-    assert forecast.seconds_left() == pytest.approx(2 * (0.5 * 30 + 0.5 * 3), rel=1e-15)
-    assert (90 + 9 + 30 + 3) / 4 * 2 == 66.0  # the old ETA: twice the forecast
+    p = _share(2, 2)
+    assert forecast.seconds_left() == pytest.approx(2 * (p * 30 + (1 - p) * 3), rel=1e-15)
+    assert forecast.seconds_left() < 0.4 * (90 + 9 + 30 + 3) / 4 * 2  # the old ETA: 66 s
 
 
 def test_the_nearest_k_stands_in_for_one_not_seen():
     """k = 6 and 2 finished, k = 4 not yet: both are 2 away and both stand in; k = 5 is
     nearest to 6."""
     tasks = _starts(6, 0, 2) + _starts(5, 0, 1) + _starts(4, 0, 1) + _starts(2, 0, 2)
-    forecast = Forecast(tasks, workers=1)
+    forecast = Forecast(tasks, workers=1, rule=RULE)
     forecast.finished(tasks[0].id, 300.0)
     forecast.finished(tasks[1].id, 20.0, pruned=True)
     forecast.finished(tasks[4].id, 100.0)
     forecast.finished(tasks[5].id, 10.0, pruned=True)
-    assert forecast.outcomes(("start", 4)) == [(0.5, 200.0), (0.5, 15.0)]
-    assert forecast.outcomes(("start", 5)) == [(0.5, 300.0), (0.5, 20.0)]
-    assert forecast.seconds_left() == pytest.approx(0.5 * 215 + 0.5 * 320, rel=1e-15)
+    p = _share(2, 2)
+    assert [cost for _, cost in forecast.outcomes(("start", 4))] == [200.0, 15.0]
+    assert [cost for _, cost in forecast.outcomes(("start", 5))] == [300.0, 20.0]
+    assert forecast.seconds_left() == pytest.approx(p * 500 + (1 - p) * 35, rel=1e-15)
 
 
 def test_a_start_in_flight_has_its_remaining_outcomes_left():
     """A start that has run 30 s has outlived every pruned start (20 s): it runs to its end,
     170 s more; at 5 s it may still be pruned."""
     tasks = _starts(3, 0, 3)
-    forecast = Forecast(tasks, workers=1)
+    forecast = Forecast(tasks, workers=1, rule=RULE)
     forecast.finished(tasks[0].id, 200.0)
     forecast.finished(tasks[1].id, 20.0, pruned=True)
+    p = _share(1, 1)
     assert forecast.expected(("start", 3), elapsed=30.0) == pytest.approx(170.0, rel=1e-15)
-    assert forecast.expected(("start", 3), elapsed=5.0) == pytest.approx(0.5 * 195 + 0.5 * 15, rel=1e-15)
+    assert forecast.expected(("start", 3), elapsed=5.0) == pytest.approx(p * 195 + (1 - p) * 15, rel=1e-15)
     assert forecast.expected(("start", 3), elapsed=250.0) == 0.0  # longer than any: about to end
     assert forecast.seconds_left({tasks[2].id: 30.0}) == pytest.approx(170.0, rel=1e-15)
 
@@ -103,7 +141,7 @@ def test_workers_share_the_work_but_not_a_task():
 def test_a_check_is_expected_like_the_checks_else_like_a_whole_start_of_its_k():
     start = StartConfig(4, 4000, "lloyd")
     check = _Check(start)
-    forecast = Forecast([start, StartConfig(4, 4001, "random"), check], workers=1)
+    forecast = Forecast([start, StartConfig(4, 4001, "random"), check], workers=1, rule=RULE)
     forecast.finished(start.id, 120.0)
     forecast.finished("k4_s4001_random", 12.0, pruned=True)
     assert forecast.expected(task_kind(check)) == pytest.approx(120.0, rel=1e-15)
