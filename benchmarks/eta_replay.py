@@ -8,9 +8,9 @@ replay's last finish minus now) is compared with ``elapsed / done × left`` (the
 2026-12-04) and with :class:`mscap.service.forecast.Forecast` (each task left at the
 expected cost of its kind, a start running to its end or pruned; the tasks in flight at
 what they have left). Prints the ETA at a few fractions of the tasks done and the median
-and worst error over the run. Example::
+and worst error over the run, relative to the time left and to the whole run's time. Example::
 
-    .venv/bin/python benchmarks/eta_replay.py out/eta/poking_quick.h5 --workers 2
+    .venv/bin/python benchmarks/eta_replay.py out/eta/poking_quick.h5 --workers 2 --prune 3:4
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def main() -> None:
     end = finishes[-1][2]
     step, _, eta = args.prune.partition(":")
     forecast = Forecast(tasks, args.workers, PruneRule(int(step), int(eta or 3)))
-    rows, errors = [], {"old": [], "new": []}
+    rows, errors, of_run = [], {"old": [], "new": []}, {"old": [], "new": []}
     for done, (rid, _, now) in enumerate(finishes, start=1):
         forecast.finished(rid, cost[rid], pruned=records[rid].status == "pruned", history=records[rid].history)
         left = len(finishes) - done
@@ -66,8 +66,10 @@ def main() -> None:
         running = {other: now - began for other, began, ended in finishes if began <= now < ended}
         new = forecast.seconds_left(running)
         errors["old"].append(abs(old - truth) / truth)
+        of_run["old"].append(abs(old - truth) / end)
         if new is not None:
             errors["new"].append(abs(new - truth) / truth)
+            of_run["new"].append(abs(new - truth) / end)
         rows.append((done, now, truth, old, new))
     statuses = [records[t.id].status for t in tasks]
     print(f"{args.file}: {len(tasks)} tasks ({statuses.count('pruned')} pruned), {args.workers} workers, "
@@ -81,9 +83,10 @@ def main() -> None:
                   f"({100 * (old / truth - 1):+.0f} %) | {duration(new)}"
                   + (f" ({100 * (new / truth - 1):+.0f} %) |" if new is not None else " |"))
     for name, values in errors.items():
-        values = sorted(values)
+        values, whole = sorted(values), sorted(of_run[name])
         print(f"{name}: median error {100 * values[len(values) // 2]:.0f} %, worst {100 * values[-1]:.0f} % "
-              f"over {len(values)} completions")
+              f"over {len(values)} completions; in shares of the whole run's time: median "
+              f"{100 * whole[len(whole) // 2]:.0f} %, worst {100 * whole[-1]:.0f} %")
 
 
 if __name__ == "__main__":

@@ -11,17 +11,16 @@ is left. :class:`Forecast` expects a start left to cost
 ``F`` and ``P`` the mean wall times of the finished starts of its k that ran to their end
 and that were pruned (else those of the nearest k that has any; before any start was
 pruned, ``P`` is what the whole ones took to the first rung, from their histories), ``p``
-the share of all finished starts that ran to their end, weighed against the pruning
-rule's own share (:func:`prior_share`: ``1/eta``, what a rung keeps) as
-:data:`PRIOR_STARTS` starts, so that the first whole starts to finish do not say that
-every start will. A finer-mesh check is expected like the checks done, else like a start
-of its k that ran to its end. A start in flight for ``t`` seconds has the outcomes
-longer than ``t`` left, less ``t`` (one that has outlived the pruned starts runs to its
-end). The job's rate is its workers (the farm keeps them busy: 0.94 of the time on 2
-workers, docs/performance.md §4). Splitting the share by initial layout (Lloyd starts,
-which start best, finish more often) did worse on a 25-start run where random starts of
-the smallest k finished too; ``benchmarks/eta_replay.py`` measures the forecasts on a
-stored run (docs/performance.md §8).
+the share of the finished starts of its initial layout that ran to their end, weighed
+against the pruning rule's own share (:func:`prior_share`: ``1/eta``, what a rung keeps)
+as :data:`PRIOR_STARTS` starts: Lloyd starts, handed out first and starting best, mostly
+run to their end, random ones mostly do not (the paper poking run: 17 of 22 against 1 of
+100), and the first whole starts to finish must not say that every start will. A
+finer-mesh check is expected like the checks done, else like a start of its k that ran to
+its end. A start in flight for ``t`` seconds has the outcomes longer than ``t`` left, less
+``t`` (one that has outlived the pruned starts runs to its end). The job's rate is its
+workers (the farm keeps them busy: 0.94 of the time on 2 workers, docs/performance.md §4).
+``benchmarks/eta_replay.py`` measures the forecasts on a stored run (docs/performance.md §8).
 """
 
 from __future__ import annotations
@@ -73,9 +72,13 @@ class Forecast:
     def __init__(self, tasks: Iterable, workers: int, rule=None):
         self.workers = max(int(workers), 1)
         self.rule, self.prior = rule, prior_share(rule)
+        tasks = list(tasks)
         self.left: dict[str, tuple[str, int]] = {task.id: task_kind(task) for task in tasks}
+        self.init: dict[str, str] = {task.id: str(getattr(task, "init", "")) for task in tasks}
         #: wall times by (kind, k, pruned)
         self.walls: dict[tuple[str, int, bool], list[float]] = defaultdict(list)
+        #: finished starts by initial layout: [ran to their end, pruned]
+        self.count: dict[str, list[int]] = defaultdict(lambda: [0, 0])
         #: seconds to the first rung of the whole starts, by k ("start", k, True)
         self.to_rung: dict[tuple[str, int, bool], list[float]] = defaultdict(list)
 
@@ -88,6 +91,8 @@ class Forecast:
         if kind is None or not math.isfinite(wall_s) or wall_s < 0:
             return
         self.walls[(*kind, bool(pruned))].append(float(wall_s))
+        if kind[0] == "start":
+            self.count[self.init.get(task_id, "")][bool(pruned)] += 1
         if history is not None and not pruned and self.prior < 1.0 and not self.rule.envelope:
             rung = first_rung_s(history, self.rule.first_step)
             if rung is not None:
@@ -103,9 +108,9 @@ class Forecast:
         nearest = min(abs(key[1] - k) for key in alike)
         return _mean([w for key in alike if abs(key[1] - k) == nearest for w in table[key]])
 
-    def outcomes(self, kind: tuple[str, int]) -> list[tuple[float, float]]:
-        """``[(probability, wall time s)]`` of a task of ``kind``: a start runs to its end
-        or is pruned; empty before any task finished."""
+    def outcomes(self, kind: tuple[str, int], init: str = "") -> list[tuple[float, float]]:
+        """``[(probability, wall time s)]`` of a task of ``kind`` (a start's initial layout
+        ``init``): a start runs to its end or is pruned; empty before any task finished."""
         what, k = kind
         full = self._cost("start", k, False)
         if what == "check":
@@ -119,18 +124,15 @@ class Forecast:
             cost = full if full is not None else cut
             cost = cost if cost is not None else self._cost("check", k, False)
             return [] if cost is None else [(1.0, cost)]
-        count = {False: 0, True: 0}  # finished starts by pruned, over every k
-        for (task, _, pruned), walls in self.walls.items():
-            if task == "start":
-                count[pruned] += len(walls)
-        p = (count[False] + PRIOR_STARTS * self.prior) / (count[False] + count[True] + PRIOR_STARTS)
+        ran, stopped = self.count.get(init, (0, 0))
+        p = (ran + PRIOR_STARTS * self.prior) / (ran + stopped + PRIOR_STARTS)
         return [(p, full), (1.0 - p, cut)]
 
-    def expected(self, kind: tuple[str, int], elapsed: float = 0.0) -> float | None:
-        """Expected wall time (s) still to come of a task of ``kind`` that has run for
-        ``elapsed`` s (0: not started): the outcomes it can still have, weighed by their
-        probabilities; ``None`` before any task finished."""
-        outcomes = self.outcomes(kind)
+    def expected(self, kind: tuple[str, int], elapsed: float = 0.0, init: str = "") -> float | None:
+        """Expected wall time (s) still to come of a task of ``kind`` (``init``: a start's
+        initial layout) that has run for ``elapsed`` s (0: not started): the outcomes it
+        can still have, weighed by their probabilities; ``None`` before any task finished."""
+        outcomes = self.outcomes(kind, init)
         if not outcomes:
             return None
         later = [(p, cost - elapsed) for p, cost in outcomes if cost > elapsed and p > 0]
@@ -144,7 +146,7 @@ class Forecast:
         tasks in flight to how long they have run (s). ``None`` while no task has
         finished (nothing to expect from)."""
         running = running or {}
-        costs = [self.expected(kind, running.get(tid, 0.0)) for tid, kind in self.left.items()]
+        costs = [self.expected(kind, running.get(tid, 0.0), self.init.get(tid, "")) for tid, kind in self.left.items()]
         if None in costs:
             return None
         return max(sum(costs) / self.workers, max(costs, default=0.0))

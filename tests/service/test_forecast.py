@@ -60,23 +60,41 @@ def test_before_any_start_is_pruned_the_rule_says_what_one_costs():
     forecast.finished(tasks[0].id, 100.0, history=history)
     p = (1 + 1) / (1 + 4)
     assert _share(1, 0) == pytest.approx(p, rel=1e-15)
-    assert forecast.outcomes(("start", 4)) == [(pytest.approx(p, rel=1e-15), 100.0), (pytest.approx(1 - p, rel=1e-15), 12.0)]
+    assert forecast.outcomes(("start", 4), "lloyd") == [(pytest.approx(p, rel=1e-15), 100.0),
+                                                        (pytest.approx(1 - p, rel=1e-15), 12.0)]
+    assert forecast.outcomes(("start", 4), "random")[0][0] == _share(0, 0) == 0.25  # none seen: the rule's
     forecast.finished(tasks[1].id, 20.0, pruned=True)  # seen: the pruned starts' own cost
-    assert forecast.outcomes(("start", 4))[1][1] == 20.0
+    assert forecast.outcomes(("start", 4), "random")[1][1] == 20.0
 
 
 def test_a_start_either_finishes_or_is_pruned():
-    """1 of the 4 finished starts ran to its end: a start left costs p of a whole start of
-    its k and 1 − p of a pruned one; one worker does them one after another."""
-    tasks = _starts(4, lloyd=2, random=6)
+    """1 of the 4 finished random starts ran to its end: a random start left costs p of a
+    whole start of its k and 1 − p of a pruned one; one worker does them one after another."""
+    tasks = _starts(4, lloyd=0, random=8)
     forecast = Forecast(tasks, workers=1, rule=RULE)
     assert forecast.seconds_left() is None  # nothing finished: nothing to expect from
     forecast.finished(tasks[0].id, 100.0)
-    for task in tasks[2:5]:
+    for task in tasks[1:4]:
         forecast.finished(task.id, 10.0, pruned=True)
     p, full, cut = _share(1, 3), 100.0, 10.0
-    assert forecast.outcomes(("start", 4)) == [(pytest.approx(p, rel=1e-15), full), (pytest.approx(1 - p, rel=1e-15), cut)]
+    assert forecast.outcomes(("start", 4), "random") == [(pytest.approx(p, rel=1e-15), full),
+                                                         (pytest.approx(1 - p, rel=1e-15), cut)]
     assert forecast.seconds_left() == pytest.approx(4 * (p * full + (1 - p) * cut), rel=1e-15)
+
+
+def test_lloyd_and_random_starts_finish_in_shares_of_their_own():
+    """The Lloyd starts, handed out first, ran to their end (2 of 2), the random ones were
+    pruned (0 of 3): a Lloyd start left is expected to run to its end far more often."""
+    tasks = _starts(4, lloyd=3, random=5)
+    forecast = Forecast(tasks, workers=1, rule=RULE)
+    for task in tasks[:2]:
+        forecast.finished(task.id, 100.0)
+    for task in tasks[3:6]:
+        forecast.finished(task.id, 10.0, pruned=True)
+    lloyd, random = forecast.outcomes(("start", 4), "lloyd"), forecast.outcomes(("start", 4), "random")
+    assert lloyd[0][0] == pytest.approx(_share(2, 0), rel=1e-15) and random[0][0] == pytest.approx(_share(0, 3), rel=1e-15)
+    expected = (_share(2, 0) * 100 + (1 - _share(2, 0)) * 10) + 2 * (_share(0, 3) * 100 + (1 - _share(0, 3)) * 10)
+    assert forecast.seconds_left() == pytest.approx(expected, rel=1e-15)
 
 
 def test_each_k_costs_what_its_own_starts_cost():
@@ -88,7 +106,7 @@ def test_each_k_costs_what_its_own_starts_cost():
     forecast.finished(tasks[0].id, 90.0)
     forecast.finished(tasks[1].id, 9.0, pruned=True)
     p = _share(1, 1)
-    assert forecast.expected(("start", 2)) == pytest.approx(p * 90 + (1 - p) * 9, rel=1e-15)
+    assert forecast.expected(("start", 2), init="random") == pytest.approx(p * 90 + (1 - p) * 9, rel=1e-15)
     forecast.finished(tasks[2].id, 30.0)
     forecast.finished(tasks[3].id, 3.0, pruned=True)
     p = _share(2, 2)
@@ -119,9 +137,9 @@ def test_a_start_in_flight_has_its_remaining_outcomes_left():
     forecast.finished(tasks[0].id, 200.0)
     forecast.finished(tasks[1].id, 20.0, pruned=True)
     p = _share(1, 1)
-    assert forecast.expected(("start", 3), elapsed=30.0) == pytest.approx(170.0, rel=1e-15)
-    assert forecast.expected(("start", 3), elapsed=5.0) == pytest.approx(p * 195 + (1 - p) * 15, rel=1e-15)
-    assert forecast.expected(("start", 3), elapsed=250.0) == 0.0  # longer than any: about to end
+    assert forecast.expected(("start", 3), elapsed=30.0, init="random") == pytest.approx(170.0, rel=1e-15)
+    assert forecast.expected(("start", 3), elapsed=5.0, init="random") == pytest.approx(p * 195 + (1 - p) * 15, rel=1e-15)
+    assert forecast.expected(("start", 3), elapsed=250.0, init="random") == 0.0  # longer than any: about to end
     assert forecast.seconds_left({tasks[2].id: 30.0}) == pytest.approx(170.0, rel=1e-15)
 
 
