@@ -89,9 +89,8 @@ def measure(path: Path) -> dict:
 
     from mscap.design.pipeline import build_design
     from mscap.scene import load_scene
-    from mscap.fem.simulate import simulate
-
     from mscap.fem.petsc import petsc
+    from mscap.fem.simulate import simulate
 
     petsc().Log.begin()  # PETSc's event times (the Newton share of each stage)
     scene = load_scene(path)

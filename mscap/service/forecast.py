@@ -83,16 +83,20 @@ class Forecast:
         self.to_rung: dict[tuple[str, int, bool], list[float]] = defaultdict(list)
 
     def finished(self, task_id: str, wall_s: float, pruned: bool = False,
-                 kind: tuple[str, int] | None = None, history=None) -> None:
+                 kind: tuple[str, int] | None = None, history=None, init: str | None = None) -> None:
         """``task_id`` is done after ``wall_s`` seconds of a worker, ``pruned`` or not
-        (``kind``: its :func:`task_kind`, if it was not one of ``tasks``); the ``history``
-        of a start that ran to its end says what a start pruned at the first rung costs."""
+        (``kind`` and a start's ``init``: its :func:`task_kind` and initial layout, if it was
+        not one of ``tasks``: a run stored by an earlier session); the ``history`` of a
+        start that ran to its end says what a start pruned at the first rung costs."""
+        if init is not None:
+            self.init.setdefault(task_id, init)
         kind = self.left.pop(task_id, kind)
         if kind is None or not math.isfinite(wall_s) or wall_s < 0:
             return
         self.walls[(*kind, bool(pruned))].append(float(wall_s))
-        if kind[0] == "start":
-            self.count[self.init.get(task_id, "")][bool(pruned)] += 1
+        if kind[0] != "start":
+            return
+        self.count[self.init.get(task_id, "")][bool(pruned)] += 1
         if history is not None and not pruned and self.prior < 1.0 and not self.rule.envelope:
             rung = first_rung_s(history, self.rule.first_step)
             if rung is not None:

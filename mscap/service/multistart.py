@@ -285,6 +285,10 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
              if row.best_run in selected and math.isnan(summaries[row.best_run].finer_metric)]
         todo = todo + pending
         total, forecast = len(todo), Forecast(todo, max(size - 1, 1), rule)
+        for summary in summaries.values():  # a resumed job knows its stored runs' costs
+            if summary.ok and summary.id not in forecast.left:
+                forecast.finished(summary.id, summary.wall_s, summary.pruned, kind=("start", summary.k),
+                                  init=summary.id.rsplit("_", 1)[-1])
         say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
             f"worker{'s' if size > 2 else ''}")
         if pending:

@@ -167,6 +167,19 @@ def test_a_check_is_expected_like_the_checks_else_like_a_whole_start_of_its_k():
     assert forecast.expected(task_kind(check)) == pytest.approx(30.0, rel=1e-15)
 
 
+def test_a_resumed_job_knows_the_runs_it_stored():
+    """Runs of an earlier session are not tasks of this one, but say what the tasks left
+    cost, as the master feeds them in (mscap.service.multistart)."""
+    tasks = _starts(3, 0, 2)
+    forecast = Forecast(tasks, workers=1, rule=RULE)
+    assert forecast.seconds_left() is None
+    forecast.finished("k3_s3005_random", 50.0, kind=("start", 3), init="random")
+    forecast.finished("k3_s3006_random", 5.0, pruned=True, kind=("start", 3), init="random")
+    p = _share(1, 1)
+    assert forecast.seconds_left() == pytest.approx(2 * (p * 50 + (1 - p) * 5), rel=1e-15)
+    assert set(forecast.left) == {task.id for task in tasks}
+
+
 def test_a_failed_wall_time_is_not_a_cost():
     tasks = _starts(2, 0, 3)
     forecast = Forecast(tasks, workers=1)
