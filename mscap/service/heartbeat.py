@@ -48,6 +48,7 @@ class Heartbeat:
         self._say, self.interval, self.clock = say, interval, clock
         self.last = clock()
         self.latest: dict[str, Progress] = {}
+        self.busy: dict[int, tuple[Any, float]] = {}  # the farm's tasks in flight, as last ticked
 
     def say(self, message: str) -> None:
         """Print ``message`` (a progress line): the silence starts again."""
@@ -68,8 +69,15 @@ class Heartbeat:
             parts.append(f"rank {worker} {run}: {state}, {now - since:.0f} s")
         return "... " + "; ".join(parts)
 
+    def running(self) -> dict[str, float]:
+        """Seconds each task in flight has run: ``{task id: s}`` (the ETA's)."""
+        now = self.clock()
+        return {getattr(task, "id", str(task)): now - since for task, since in self.busy.values()}
+
     def tick(self, busy: dict[int, tuple[Any, float]]) -> None:
-        """Print :meth:`line` if starts are running and nothing was said for ``interval`` s."""
+        """Keep ``busy`` (:meth:`running`); print :meth:`line` if starts are running and
+        nothing was said for ``interval`` s."""
+        self.busy = busy
         if self._say is None or self.interval <= 0 or not busy or self.clock() - self.last < self.interval:
             return
         self.say(self.line(busy))

@@ -321,7 +321,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
                 metric += (f" (no finer-mesh check: {beaten[rec.id]} of its k is better)" if rec.id in beaten else
                            " (no finer-mesh check: it failed, or the job is stopping)")
             say(f"[{done}/{total}] {rec.id}: {rec.status} {metric} ({rec.wall_s:.1f} s, rank {rec.rank}); "
-                f"{total - done} left, ETA {duration(forecast.seconds_left(running()))}")
+                f"{total - done} left, ETA {duration(forecast.seconds_left(heartbeat.running()))}")
 
         beaten = {}  # run -> the run of its k that beat it before its check
 
@@ -334,16 +334,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             heartbeat.update(progress)
             return rungs.decide(progress.k, progress.iteration, progress.score) if progress.rung else None
 
-        def tick(busy: dict) -> None:  # the farm's own dict of the tasks in flight
-            in_flight[0] = busy
-            heartbeat.tick(busy)
-
-        def running() -> dict[str, float]:
-            now = time.monotonic()  # the farm's clock
-            return {getattr(task, "id", ""): now - since for task, since in in_flight[0].values()}
-
-        in_flight: list[dict] = [{}]
-        execute(todo, record, answer, tick)
+        execute(todo, record, answer, heartbeat.tick)
         final = selection()
         write_selection(store, final)  # also when nothing was left to do
     finally:
