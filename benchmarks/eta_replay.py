@@ -46,14 +46,21 @@ def main() -> None:
     from mscap.service.selection import StartConfig
     from mscap.service.store import finished_ids, read_run, read_store
 
-    store = read_store(args.file)
+    from mscap.errors import MscapError
+
+    step, _, eta = args.prune.partition(":")
+    if not (step.isdigit() and (eta.isdigit() or not eta)):
+        parser.error(f"--prune expects STEP or STEP:ETA (whole numbers), got {args.prune!r}")
+    try:
+        store = read_store(args.file)
+    except MscapError as exc:
+        sys.exit(str(exc))
     records = {rid: read_run(store, rid) for rid in finished_ids(store)}
     store.close()
     tasks = sorted((StartConfig(r.k, r.seed, r.init) for r in records.values()), key=lambda c: (-c.k, c.seed))
     cost = {rid: float(r.wall_s) for rid, r in records.items()}
     finishes = replay(tasks, cost, args.workers)
     end = finishes[-1][2]
-    step, _, eta = args.prune.partition(":")
     forecast = Forecast(tasks, args.workers, PruneRule(int(step), int(eta or 3)))
     rows, errors, of_run = [], {"old": [], "new": []}, {"old": [], "new": []}
     for done, (rid, _, now) in enumerate(finishes, start=1):
