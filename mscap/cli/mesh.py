@@ -26,6 +26,7 @@ def run(args) -> int:
     from mscap.mesh.io import write_mesh
     from mscap.mesh.layered import mesh_scene
     from mscap.mesh.quality import mesh_report
+    from mscap.mesh.triangulate import quality_grading_mm
     from mscap.outputs import output_directory, replace_file
     from mscap.scene import load_scene
 
@@ -45,8 +46,12 @@ def run(args) -> int:
           f"{scene.thickness_mm:.3f} mm thick")
     m = scene.mesh
     why = f"for a {100 * m.tolerance:g} % capacitance tolerance" if m.tolerance else "set by hand"
+    grading = quality_grading_mm(m)
     print(f"  sizes ({why}): P{m.order} {m.element}s, edge {m.edge_length_outline_mm:.3g} mm at the outlines growing to "
-          f"{m.edge_length_mm:g} mm over {m.grading_distance_mm:.3g} mm, {m.elements_per_layer} per layer")
+          f"{m.edge_length_mm:g} mm over {grading:.3g} mm, {m.elements_per_layer} per layer")
+    if grading > m.grading_distance_mm * (1 + 1e-9):
+        print(f"  (grading_distance_mm = {m.grading_distance_mm:g} lengthened to {grading:.3g} mm: the edge length "
+              f"grows at most 1 mm per mm, the 2D mesh quality's condition)")
     for line in report.lines():
         print("  " + line)
     if written:

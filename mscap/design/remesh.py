@@ -11,7 +11,8 @@ import numpy as np
 
 from mscap.design.pipeline import Design, Evaluation, build_design
 from mscap.geometry.layout import Layout, check_layout
-from mscap.mesh.quality import triangle_angles_deg
+from mscap.geometry.polygons import turning
+from mscap.mesh.shape import triangle_angles_deg
 from mscap.mesh.transfer import interpolation_matrix
 
 __all__ = ["remesh", "resample_outline", "resampled_layout", "needs_remesh", "min_angle"]
@@ -19,18 +20,11 @@ __all__ = ["remesh", "resample_outline", "resampled_layout", "needs_remesh", "mi
 log = logging.getLogger(__name__)
 
 
-def _corners(polygon: np.ndarray, degrees: float) -> np.ndarray:
-    before = polygon - np.roll(polygon, 1, axis=0)
-    after = np.roll(polygon, -1, axis=0) - polygon
-    cos = np.einsum("ij,ij->i", before, after) / (np.linalg.norm(before, axis=1) * np.linalg.norm(after, axis=1))
-    return cos < np.cos(np.radians(degrees))
-
-
 def resample_outline(polygon: np.ndarray, spacing_mm: float, corner_deg: float = 20.0) -> np.ndarray:
     """A closed polyline resampled at about ``spacing_mm`` along its arc, keeping the
     vertices where it turns by more than ``corner_deg`` (the plate corners)."""
     polygon = np.asarray(polygon, dtype=float)
-    corner = np.flatnonzero(_corners(polygon, corner_deg))
+    corner = np.flatnonzero(turning(polygon, corner_deg))
     if not len(corner):
         corner = np.array([0])
     pieces = []

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
-    "signed_area", "ccw", "edges", "segments_cross", "self_intersections",
+    "signed_area", "ccw", "turning", "edges", "segments_cross", "self_intersections",
     "points_in_polygon", "segment_projection", "point_segment_distance", "boundary_distance",
     "polygons_intersect", "coarsened", "arc_positions", "along_outline", "narrowest_neck", "square", "disk",
     "rounded_square",
@@ -25,6 +25,14 @@ def ccw(polygon: np.ndarray) -> np.ndarray:
     """The polygon with counter-clockwise orientation (a new array)."""
     polygon = np.asarray(polygon, dtype=float)
     return polygon.copy() if signed_area(polygon) > 0 else polygon[::-1].copy()
+
+
+def turning(polygon: np.ndarray, degrees: float) -> np.ndarray:
+    """Mask of the vertices where a closed polygon turns by more than ``degrees``."""
+    before = polygon - np.roll(polygon, 1, axis=0)
+    after = np.roll(polygon, -1, axis=0) - polygon
+    cos = np.einsum("ij,ij->i", before, after) / (np.linalg.norm(before, axis=1) * np.linalg.norm(after, axis=1))
+    return cos < np.cos(np.radians(degrees))
 
 
 def edges(polygon: np.ndarray) -> np.ndarray:

@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mscap.errors import MeshError, SceneError
+from mscap.mesh.triangulate import MAX_SLOPE
 from mscap.scene.settings import MAX_CAPACITORS
 
 if TYPE_CHECKING:
@@ -51,8 +52,10 @@ __all__ = ["SizeEstimate", "estimate_mesh", "estimate_electrostatic", "estimate_
 #: The environment variable that sets the memory limit (GB); ``--max-memory-gb`` sets it.
 MEMORY_ENV = "MSCAP_MAX_MEMORY_GB"
 #: Triangles per unit of ∫ h⁻² dA; fitted (benchmarks/size_estimate.py). Equilateral
-#: triangles of edge h would give 4/√3 = 2.31: gmsh's edges average 0.84 of the target.
-KAPPA = 3.27
+#: triangles of edge h would give 4/√3 = 2.31: gmsh's edges average 0.75 of the target
+#: (0.84 before the quality bounds of mscap.mesh.triangulate refined corners and strips:
+#: 3.27 then).
+KAPPA = 4.10
 #: The fastest a Frontal-Delaunay mesh grows its edges away from a fine line (mm per mm):
 #: asked for a ramp of 2 (0.075 → 5 mm over 2.5 mm), gmsh keeps edges smaller; fitted with KAPPA.
 MAX_GROWTH = 1.1
@@ -179,6 +182,7 @@ def estimate_mesh(sheet_outline_mm, plate_area_mm2: float, perimeter_mm: float, 
     far = _positive(settings.edge_length_mm, keys["edge"], path)
     near = _positive(settings.edge_length_outline_mm, keys["outline"], path)
     grading = _positive(settings.grading_distance_mm, keys["grading"], path)
+    grading = max(grading, (far - near) / MAX_SLOPE)  # as triangulate lengthens it for the mesh quality
     slabs = _positive(slabs, keys["slabs"], path)
     fringe = settings.fringe_distance_mm or 0.0
     if fringe != 0:

@@ -7,23 +7,13 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from mscap.mesh.layered import LayeredMesh, tet_volumes
+from mscap.mesh.shape import MeshQuality, neighbour_size_ratios, triangle_angles_deg
 
-__all__ = ["triangle_angles_deg", "dihedral_angles_deg", "aspect_ratios", "MeshReport", "mesh_report"]
+__all__ = ["triangle_angles_deg", "dihedral_angles_deg", "aspect_ratios", "MeshReport", "mesh_report",
+           "quality_verdict"]
 
 # The 6 edges of a tet and, for each, the two faces meeting there (face f omits vertex f).
 _TET_EDGE_FACES = np.array([[2, 3], [1, 3], [1, 2], [0, 3], [0, 2], [0, 1]])  # edges 01,02,03,12,13,23
-
-
-def triangle_angles_deg(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """``(m, 3)`` interior angles of each triangle, degrees."""
-    p = points[triangles]
-    angles = []
-    for i in range(3):
-        u = p[:, (i + 1) % 3] - p[:, i]
-        v = p[:, (i + 2) % 3] - p[:, i]
-        cos = np.einsum("ij,ij->i", u, v) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
-        angles.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-    return np.stack(angles, axis=1)
 
 
 def _face_normals(p: np.ndarray) -> np.ndarray:
@@ -63,6 +53,8 @@ class MeshReport:
     conductor_tets: int
     capacitors: int
     min_angle_2d_deg: float
+    max_size_ratio_2d: float
+    quality_2d: str
     min_dihedral_deg: float
     max_aspect_ratio: float
     time_s: float
@@ -76,6 +68,8 @@ class MeshReport:
             f"3D mesh        {self.vertices:>10d} vertices {self.tets:>10d} tets",
             f"conductors     {self.capacitors:>10d} plates   {self.conductor_tets:>10d} tets",
             f"min 2D angle   {self.min_angle_2d_deg:>10.2f} deg",
+            f"size ratio     {self.max_size_ratio_2d:>10.2f} (largest between neighbouring triangles)",
+            f"2D quality     {self.quality_2d}",
             f"min dihedral   {self.min_dihedral_deg:>10.3f} deg",
             f"max aspect     {self.max_aspect_ratio:>10.1f} (longest edge / inradius, regular tet = 1)",
             f"time           {self.time_s:>10.2f} s",
@@ -84,13 +78,24 @@ class MeshReport:
 
 def mesh_report(mesh: LayeredMesh, time_s: float) -> MeshReport:
     """Summarise ``mesh``; ``time_s`` is the time it took to build."""
+    quality = mesh.mesh2d.quality
+    verdict = "not measured" if quality is None else quality_verdict(quality)
     return MeshReport(
         vertices_2d=len(mesh.mesh2d.points), triangles=len(mesh.mesh2d.triangles),
         vertices=len(mesh.points), tets=len(mesh.tets),
         conductor_tets=int(np.count_nonzero(mesh.capacitor_of_tet >= 0)),
         capacitors=mesh.n_capacitors,
         min_angle_2d_deg=float(triangle_angles_deg(mesh.mesh2d.points, mesh.mesh2d.triangles).min()),
+        max_size_ratio_2d=float(neighbour_size_ratios(mesh.mesh2d.points, mesh.mesh2d.triangles)[0].max(initial=1.0)),
+        quality_2d=verdict,
         min_dihedral_deg=float(dihedral_angles_deg(mesh.points, mesh.tets).min()),
         max_aspect_ratio=float(aspect_ratios(mesh.points, mesh.tets).max()),
         time_s=time_s,
     )
+
+
+def quality_verdict(quality: MeshQuality) -> str:
+    """One line: does the 2D mesh meet the quality its error model assumes?"""
+    if quality.meets:
+        return "meets the kept quality" + (" (meshed again with a gentler size field)" if quality.repaired else "")
+    return "BELOW the quality the error model assumes: " + quality.describe()

@@ -241,7 +241,8 @@ def test_screening_leaves_the_path_as_it_was(tmp_path):
     """``screen_trials`` skips only trials Armijo would reject. On jobs/quick.toml's scene
     (P2 elasticity, as shipped) the line searches of steps 4 and 5 try α at which the
     outline terms rise by 0.1–2.9, 10–80 times what d can gain: screened, the two runs take
-    the same 5 steps to the same J with 3 evaluations fewer. (On the seven quick scenes and
+    the same 5 steps to the same J with fewer evaluations (3 on the meshes before the 2D
+    quality bounds of mscap/mesh/triangulate.py, 1 since: 9 → 8). (On the seven quick scenes and
     all seven paper ones every path was the same, in 0.43–0.98 of the evaluations:
     docs/optimize.md, "Screening line-search trials".)"""
     path = tmp_path / "quick.toml"
@@ -254,7 +255,7 @@ def test_screening_leaves_the_path_as_it_was(tmp_path):
                                 cascade_levels=0)
     off, on = runs[False], runs[True]
     assert [r.J for r in on.history] == [r.J for r in off.history]
-    assert sum(r.evaluations for r in on.history) == sum(r.evaluations for r in off.history) - 3
+    assert sum(r.evaluations for r in on.history) == sum(r.evaluations for r in off.history) - 1
 
 
 def test_plateau_compares_J_with_its_value_window_steps_back():
