@@ -11,14 +11,16 @@ a 10 mm margin, in the stack of ``jobs/poking.toml``. Coupling terms: top–top 
 plates of the same layer), top–bottom across (top plate 0 and bottom plate 1) and the
 diagonal C_top0 for comparison. Reference: P2, outline edge and elements per layer refined
 together (0.3 / 0.15 / 0.075 mm with 1 / 2 / 4 per layer), Richardson per entry at the
-observed order. Settings: the hand-set paper mesh and the rungs of the tolerance ladder
-(``mscap.scene.sizing.LADDER``).
+observed order. Settings: the hand-set paper mesh, the default (the 1 % tolerance rung
+for these plates), the rungs of the tolerance ladder (``mscap.scene.sizing.LADDER``) and
+four finer ones for the couplings, the last ``mscap.scene.sizing.COUPLING_RUNG``.
 
 Run (about 15 minutes on one core)::
 
     .venv/bin/python benchmarks/maxwell_coupling.py
 
-Writes ``docs/maxwell_coupling.csv``.
+Writes ``docs/maxwell_coupling.csv`` (``--out docs/maxwell_coupling_quality.csv``: the run of
+docs/electrostatics.md's 2026-12-05 table).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.geometry.layout import Layout  # noqa: E402
 from mscap.geometry.polygons import square  # noqa: E402
 from mscap.mesh.layered import mesh_scene  # noqa: E402
-from mscap.scene.sizing import LADDER, rung_settings  # noqa: E402
+from mscap.scene.sizing import COUPLING_RUNG, LADDER, Rung, rung_settings, settings_for_tolerance  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.scene.settings import MeshSettings  # noqa: E402
 
@@ -77,7 +79,13 @@ def main(argv=None):
     gap_mm = scene.layers[2].thickness_mm
     stack = sum(layer.thickness_mm for layer in scene.layers)
     settings = [("hand-set (0.075 mm, 5 mm at 2.5 mm)", MeshSettings(5.0, 0.075, 2.5, 1, 1))]
+    default = settings_for_tolerance(0.01, [square((0.0, 0.0), SIDE_MM)], gap_mm, stack)[0]
+    settings += [("default (no [mesh]: 1 % tolerance)", default)]
     settings += [(rung.label, rung_settings(rung, gap_mm, stack)) for rung in LADDER]
+    # finer than the C ladder, for the couplings (mscap.scene.sizing.COUPLING_RUNG is the last)
+    couplings = [Rung(1, 0.5, 2, 0.5, float("nan"), "prism"), Rung(1, 0.25, 2, 0.5, float("nan"), "prism"),
+                 Rung(2, 0.5, 1, 0.5, float("nan")), COUPLING_RUNG]
+    settings += [(rung.label, rung_settings(rung, gap_mm, stack)) for rung in couplings]
     rows = []
     for gap in args.gaps:
         levels = [maxwell(scene, gap, MeshSettings(2.0, h, 3.0, n, 2))[0] for h, n in REFERENCE_LEVELS]

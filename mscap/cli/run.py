@@ -68,6 +68,8 @@ def run(args) -> int:
 
         for handler in logging.getLogger().handlers:
             handler.setFormatter(logging.Formatter(f"[rank {rank}] %(levelname)s %(name)s: %(message)s"))
+            if rank > 1:  # advice about the scene (e.g. a biased element) once, from the first worker
+                handler.addFilter(lambda record: not getattr(record, "advice", False))
     say = progress_printer(args.quiet or rank > 0)
     summary = run_multistart(scene, args.output, comm, force=args.force, retry_failed=args.retry_failed,
                              select_configs=keep, max_iterations=args.max_iterations, progress=say,

@@ -79,7 +79,17 @@ class RestCapacitance:
 
 def rest_capacitance(scene: Scene, order: int | None = None, maxwell: bool = False) -> RestCapacitance:
     """Mesh ``scene`` and solve its electrostatics at rest (top plate at 1 V, all other
-    plates grounded; with ``maxwell`` also the Maxwell matrix of all 2k plates)."""
+    plates grounded; with ``maxwell`` also the Maxwell matrix of all 2k plates, on the
+    mesh :func:`mscap.scene.sizing.for_couplings` makes of a tolerance-sized one)."""
+    if maxwell:
+        from dataclasses import replace
+
+        from mscap.scene.sizing import for_couplings
+
+        coupled = for_couplings(scene.mesh, scene.layers[2].thickness_mm, scene.thickness_mm)
+        if coupled is not scene.mesh:
+            scene = replace(scene, mesh=coupled)
+            order = order or coupled.order
     order = order or scene.mesh.order
     start = time.perf_counter()
     mesh = mesh_scene(scene)

@@ -279,6 +279,7 @@ def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None, tra
         return None, None
     order = order or scene.elastic.order
     _warn_p1_clamped_stretch(scene, order)
+    _warn_p1_poke(scene, order)
     problem = build_problem(mesh_elastic(scene, mesh), scene.layers, order)
     return problem, elastic_transfer(problem, mesh) if transfer else None
 
@@ -306,7 +307,20 @@ def _warn_p1_clamped_stretch(scene: Scene, order: int) -> None:
             _P1_WARNED.add((scene.path, pose.name))
             log.warning("pose %s: P1 elements overestimate the capacitance of a clamped stretch "
                         "this large (grid3x3 at 100 %%: +8 %% at 5 mm, +1.3 %% at 1.5 mm elastic edges); "
-                        "consider [elastic] order = 2 (docs/elastic.md)", pose.name)
+                        "consider [elastic] order = 2 (docs/elastic.md)", pose.name, extra={"advice": True})
+
+
+def _warn_p1_poke(scene: Scene, order: int) -> None:
+    """P1 tets lock in a thin stack bent by a ball: the pose-to-pose gains read high. Say
+    so once per scene in a process."""
+    if order != 1 or (scene.path, "poke") in _P1_WARNED:
+        return
+    pokes = [p.name for p in scene.poses if p.kind == "poke"]
+    if pokes:
+        _P1_WARNED.add((scene.path, "poke"))
+        log.warning("%s: P1 elements read poke gains high in a thin stack (locking: +8-16 %% on jobs/poking.toml's "
+                    "meshes, +36 %% for a 5 mm ball at the defaults; P2 +2-9 %%); poses %s; consider [elastic] "
+                    "order = 2 (docs/elastic.md)", scene.name, ", ".join(pokes), extra={"advice": True})
 
 
 def release_freed_memory() -> None:

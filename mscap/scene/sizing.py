@@ -39,7 +39,7 @@ from mscap.scene.settings import Layer, MeshSettings, Scene
 __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
            "predicted_errors", "settings_for_tolerance", "sized", "with_layout", "poke_zones", "no_finer_than",
            "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "bend_radius", "curvature_edge", "ElasticRung",
-           "POKE_ELASTIC_LADDER", "elastic_for_signal"]
+           "POKE_ELASTIC_LADDER", "POKE_ELEMENT_ORDER", "elastic_for_signal", "COUPLING_RUNG", "for_couplings"]
 
 log = logging.getLogger(__name__)
 
@@ -127,6 +127,32 @@ LADDER: tuple[Rung, ...] = (
     Rung(2, 1.0, 1, 0.5, 0.05),
     Rung(2, 0.5, 2, 0.5, 0.017),
 )
+
+
+#: The mesh for Maxwell couplings (``mscap capacitance --maxwell`` on a scene sized by a
+#: tolerance): the off-diagonal entries between neighbouring plates come from the fringe
+#: fields across the gap, which the C ladder does not calibrate. Two 6 mm squares against
+#: P2 Richardson references (benchmarks/maxwell_coupling.py, 2026-12-05; same-layer /
+#: cross-layer coupling): the 1 % C mesh (P1 prisms, outline d/2) +2.8 / +2.8 % at a 2 mm
+#: gap and +5.1 / +7.1 % at 0.5 mm; no P1 prism mesh got within 2 % at 0.5 mm (outline d/4
+#: with two per layer: +2.2 / +2.2 %, 94k unknowns); this rung +0.40 / +0.42 % and
+#: +1.54 / +0.90 %, at about 10× the unknowns of the C mesh (163k against 16.5k).
+COUPLING_RUNG = Rung(2, 1.0, 2, 0.5, 0.05)
+
+
+def for_couplings(mesh: MeshSettings, gap_mm: float, stack_mm: float) -> MeshSettings:
+    """A tolerance-sized ``mesh`` on :data:`COUPLING_RUNG` (P2 is more accurate for C
+    too: +0.34 % where the 6 mm squares' P1 prism rung reads +0.78 %), unless it is a P2
+    mesh at least as fine already; its far edge, zones and curvature kept. Hand-set sizes
+    come back as they are."""
+    if mesh.tolerance is None or (mesh.order == 2 and mesh.elements_per_layer >= 2 and
+                                  mesh.edge_length_outline_mm <= COUPLING_RUNG.outline_over_gap * gap_mm):
+        return mesh
+    fine = rung_settings(COUPLING_RUNG, gap_mm, stack_mm, mesh.edge_length_mm)
+    return replace(mesh, order=2, element="tet", edge_length_outline_mm=fine.edge_length_outline_mm,
+                   elements_per_layer=max(2, mesh.elements_per_layer), fringe_slope=COUPLING_RUNG.slope,
+                   grading_distance_mm=fine.grading_distance_mm, fringe_distance_mm=fine.fringe_distance_mm,
+                   zones=no_finer_than(mesh.zones, fine.edge_length_outline_mm))
 
 
 def rung_settings(rung: Rung, gap_mm: float, stack_mm: float, far_mm: float = FAR_EDGE_MM) -> MeshSettings:
@@ -266,6 +292,14 @@ POKE_ELASTIC_LADDER: tuple[ElasticRung, ...] = (
     ElasticRung(2, 0.354, 0.019),
     ElasticRung(2, 0.25, 0.015),
 )
+
+
+#: The elastic order of a poked scene that gives none. On a 16 mm plate poked 4 mm deep by a
+#: 5 mm ball (40 mm sheet held at two edges; P2 converged: gain 1.122 pF) the default P1 read
+#: +36 % and P2 at the same 5 mm edge +9 % in 0.9× its time (P1 refines under the ball, P2
+#: needs no zones); on jobs/poking.toml's hand-set meshes P1 reads the gains 8–16 % high and
+#: P2 1.8–2.2 %, at 25× P1's elastic time (docs/elastic.md, "Pokes: P1 locks").
+POKE_ELEMENT_ORDER = 2
 
 
 def elastic_for_signal(tolerance: float, poses, order: int | None = None) -> tuple[ElasticRung, float] | None:

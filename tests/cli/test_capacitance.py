@@ -64,3 +64,24 @@ def test_cli_maxwell_fits_100_columns_and_warns_first(write_scene, capsys, monke
     assert main(["capacitance", str(path), "--maxwell", "--json"]) == 0
     record = json.loads(capsys.readouterr().out)
     np.testing.assert_allclose(read_blocks(lines), np.round(record["maxwell_pF"], 4), atol=1e-9)
+
+
+def test_maxwell_couplings_at_the_defaults_within_2_percent(write_scene, capsys):
+    """Two 6 mm squares 0.5 mm apart, no ``[mesh]`` table (issue 44: the 1 % C mesh read the
+    same-layer coupling +11.5 % here; +5.1 / +7.1 % on today's quality meshes). ``--maxwell``
+    meshes for the couplings (mscap.scene.sizing.COUPLING_RUNG): both couplings within 2 %
+    of the P2 Richardson references of benchmarks/maxwell_coupling.py (outline 0.3 / 0.15 /
+    0.075 mm with 1 / 2 / 4 per layer, observed orders 1.37 and 1.20: −0.05568 pF top–top,
+    −0.03927 pF top–bottom across, C 6.94486 pF) and C within 1 %."""
+    data = scene_dict(name="pair", sheet={"width_mm": 32.5, "height_mm": 26.0},
+                      capacitors={"min_gap_mm": 0.25,
+                                  "outlines_mm": [[[10.0, 10.0], [16.0, 10.0], [16.0, 16.0], [10.0, 16.0]],
+                                                  [[16.5, 10.0], [22.5, 10.0], [22.5, 16.0], [16.5, 16.0]]]})
+    del data["mesh"]
+    path = write_scene(data)
+    assert main(["capacitance", str(path), "--maxwell", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "the couplings get their own mesh" in captured.err
+    m = np.array(json.loads(captured.out)["maxwell_pF"])  # bottom 0, bottom 1, top 0, top 1
+    assert abs(m[2, 3] / -0.05568 - 1) < 0.02 and abs(m[2, 1] / -0.03927 - 1) < 0.02, (m[2, 3], m[2, 1])
+    assert abs(m[2, 2] / 6.94486 - 1) < 0.01

@@ -246,7 +246,7 @@ def test_screening_leaves_the_path_as_it_was(tmp_path):
     all seven paper ones every path was the same, in 0.43–0.98 of the evaluations:
     docs/optimize.md, "Screening line-search trials".)"""
     path = tmp_path / "quick.toml"
-    path.write_text(QUICK.replace("[elastic]\n", "[elastic]\norder = 2\n", 1))
+    path.write_text(QUICK.replace("order = 1\n", "order = 2\n", 1))
     scene = load_scene(path)
     runs = {}
     for screen in (False, True):

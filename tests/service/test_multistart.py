@@ -30,7 +30,7 @@ needs_mpirun = pytest.mark.skipif(shutil.which("mpirun") is None, reason="no mpi
 def tiny_scene() -> dict:
     data = copy.deepcopy(SMALL_SCENE)
     data["mesh"] = {"edge_length_mm": 4.0, "edge_length_outline_mm": 1.0, "grading_distance_mm": 2.0}
-    data["elastic"] = {"edge_length_mm": 6.0}
+    data["elastic"] = {"edge_length_mm": 6.0, "order": 1}  # P1 as measured (pokes get P2 unless told)
     data["poses"] = [
         {"name": "left", "kind": "poke", "center_mm": [10.0, 10.0], "radius_mm": 4.0, "depth_mm": 2.0,
          "held_edges": ["x_min", "x_max"]},
@@ -77,8 +77,11 @@ def test_three_ranks_write_a_complete_file(three_ranks, capsys):
     store.close()
     # One progress line per run, on stderr. The largest k is handed out first (one k = 3
     # start per worker), so no k = 2 start can finish before a k = 3 one.
-    progress = [line for line in done.stderr.splitlines() if line.startswith("[")]
+    progress = [line for line in done.stderr.splitlines() if line.startswith("[") and not line.startswith("[rank ")]
     assert len(progress) == 4 and progress[0].startswith("[1/4] k3_")
+    # advice about the scene (P1 under pokes) once, from the first worker, not once per worker
+    advice = [line for line in done.stderr.splitlines() if "P1 elements read poke gains high" in line]
+    assert len(advice) == 1 and advice[0].startswith("[rank 1] WARNING"), advice
     # Each ends with the runs left and the ETA (mscap.service.forecast), known from the
     # first finished run on and nothing after the last.
     assert all(re.search(r"\d left, ETA (\d+ s|\d+ min|\d+ h \d\d min)$", line) for line in progress), progress
