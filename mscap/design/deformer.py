@@ -399,7 +399,7 @@ def _skinning_mesh(mesh: TriMesh, control_vertex: np.ndarray, chains: Sequence[n
     edge = np.median(np.concatenate([np.linalg.norm(points[np.roll(c, -1)] - points[c], axis=1) for c in chains]))
     h = max(float(np.median(np.concatenate(gaps))) / edges_per_spacing, float(edge))
     sheet = points[loop[_corners(points[loop])]]
-    skin = triangulate(sheet, Layout(tuple(polygons)), MeshSettings(4 * h, h, 8 * h))
+    skin = triangulate(sheet, Layout(tuple(polygons)), MeshSettings(4 * h, h, 8 * h), auxiliary=True)
     distance, skin_control = cKDTree(skin.points).query(points[control_vertex])
     if distance.max() > 1e-9 * float(np.ptp(points, axis=0).max()):
         raise MeshError("a control point is not a vertex of the skinning mesh")

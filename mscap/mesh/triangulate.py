@@ -157,10 +157,13 @@ def quality_grading_mm(settings: MeshSettings, slope: float = MAX_SLOPE) -> floa
     return max(settings.grading_distance_mm, (settings.edge_length_mm - settings.edge_length_outline_mm) / slope)
 
 
-def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSettings) -> TriMesh:
+def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSettings,
+                auxiliary: bool = False) -> TriMesh:
     """Mesh the sheet with the layout's outlines embedded, to :mod:`mscap.mesh.shape`'s
     quality (made again with a gentler size field when the first mesh misses it; kept
-    with a warning when that one misses it too).
+    with a warning when that one misses it too). An ``auxiliary`` mesh (the skinning
+    weights' of :mod:`mscap.design.deformer`, whose outlines are the control points, unevenly
+    spaced) says so at the info level only: no capacitance is computed on it.
 
     Raises
     ------
@@ -174,7 +177,8 @@ def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSett
         mesh = _triangulate(sheet_outline_mm, layout, settings, 0.5)
         quality = assess(mesh.points, mesh.triangles, layout.outlines, sheet_outline_mm, repaired=True)
         if not quality.meets:
-            log.warning("2D mesh below the quality its error model assumes: %s", quality.describe())
+            log.log(logging.INFO if auxiliary else logging.WARNING,
+                    "2D mesh below the quality its error model assumes: %s", quality.describe())
     log.info("2D mesh: %d vertices, %d triangles, %s", len(mesh.points), len(mesh.triangles), quality.describe())
     return TriMesh(mesh.points, mesh.triangles, mesh.capacitor_of_triangle, quality)
 

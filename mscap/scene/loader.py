@@ -25,7 +25,7 @@ from mscap.geometry.layout import SHAPES, Layout, check_layout, grid_layout
 from mscap.scene import sizing
 from mscap.scene._toml import Table
 from mscap.scene.calibration import CalibrationSettings, read_calibration
-from mscap.scene.poses import PokePose, read_pose
+from mscap.scene.poses import read_pose
 from mscap.scene.settings import (BALL_EDGE_RATIO, DEFAULT_FAMILY_COUNT, DEFAULT_MIN_GAP_MM, DESIGN_POSES,
                                   DISTANCES, ELASTIC_MESHES, HESSIAN_MODES, LAYER_KINDS, LAYER_THICKNESS_MM,
                                   MAX_CAPACITORS, MAX_CASCADE_LEVELS, MAX_CUTS, MAX_ITERATIONS, MAX_LENGTH_MM,
@@ -274,12 +274,13 @@ def _size_mesh(t: Table, given: MeshSettings, layers: tuple[Layer, ...], layout:
 def _elastic_for_signal(mesh: MeshSettings, elastic: ElasticSettings, poses, given: dict) -> ElasticSettings:
     """The elastic order and edge a poked scene's ``signal_tolerance`` asks for; an order or
     edge the scene's ``[elastic]`` gives wins (an order restricts the choice to its rungs).
-    Without a signal tolerance a poked scene that gives no order gets P2
-    (:data:`mscap.scene.sizing.POKE_ELEMENT_ORDER`)."""
+    Without a signal tolerance a scene with pokes or glued poses that gives no order gets
+    P2 (:data:`mscap.scene.sizing.BENDING_ELEMENT_ORDER`)."""
     if mesh.signal_tolerance is None:
-        if "order" not in given and any(isinstance(p, PokePose) for p in poses):
-            log.info("elastic: P2 for the pokes (P1 tets lock in the thin stack; docs/elastic.md)")
-            return replace(elastic, order=sizing.POKE_ELEMENT_ORDER)
+        if "order" not in given and any(getattr(p, "kind", None) in ("poke", "glue") for p in poses):
+            log.info("elastic: P2 for the poses that bend the sheet (P1 tets lock in the thin stack; "
+                     "docs/elastic.md)")
+            return replace(elastic, order=sizing.BENDING_ELEMENT_ORDER)
         return elastic
     chosen = sizing.elastic_for_signal(mesh.signal_tolerance, poses, given.get("order"))
     if chosen is None:

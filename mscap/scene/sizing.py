@@ -39,7 +39,7 @@ from mscap.scene.settings import Layer, MeshSettings, Scene
 __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
            "predicted_errors", "settings_for_tolerance", "sized", "with_layout", "poke_zones", "no_finer_than",
            "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "bend_radius", "curvature_edge", "ElasticRung",
-           "POKE_ELASTIC_LADDER", "POKE_ELEMENT_ORDER", "elastic_for_signal", "COUPLING_RUNG", "for_couplings"]
+           "POKE_ELASTIC_LADDER", "BENDING_ELEMENT_ORDER", "elastic_for_signal", "COUPLING_RUNG", "for_couplings"]
 
 log = logging.getLogger(__name__)
 
@@ -294,12 +294,15 @@ POKE_ELASTIC_LADDER: tuple[ElasticRung, ...] = (
 )
 
 
-#: The elastic order of a poked scene that gives none. On a 16 mm plate poked 4 mm deep by a
-#: 5 mm ball (40 mm sheet held at two edges; P2 converged: gain 1.122 pF) the default P1 read
-#: +36 % and P2 at the same 5 mm edge +9 % in 0.9× its time (P1 refines under the ball, P2
-#: needs no zones); on jobs/poking.toml's hand-set meshes P1 reads the gains 8–16 % high and
-#: P2 1.8–2.2 %, at 25× P1's elastic time (docs/elastic.md, "Pokes: P1 locks").
-POKE_ELEMENT_ORDER = 2
+#: The elastic order of a scene with pokes or glued poses that gives none: the sheet bends
+#: there, and linear tets one element thick bend poorly. Against P2 at a quarter of the
+#: 5 mm edge (benchmarks/element_bias.py, ν = 0.30 / 0.47 / 0.49), P1 at 5 mm reads a
+#: 5 mm ball's gain +22 / +34 / +48 % and a glued 15 mm cylinder's +0.5 / −6.9 / −10.7 %;
+#: P2 at 5 mm +5.9 / +8.3 / +11.6 % and +0.9 / +1.2 / +1.3 %, at 1.5–2× P1's wall (the poke's
+#: P1 refines under the ball, P2 does not). On jobs/poking.toml's hand-set meshes P2 reads
+#: the 16 gains within 2.2 % where P1 is 8–16 % high, at 25× P1's elastic time
+#: (docs/elastic.md, "Pokes and bends: P1 locks").
+BENDING_ELEMENT_ORDER = 2
 
 
 def elastic_for_signal(tolerance: float, poses, order: int | None = None) -> tuple[ElasticRung, float] | None:

@@ -165,3 +165,8 @@ def test_a_mesh_that_misses_the_quality_is_made_again_or_named(monkeypatch, capl
     assert not mesh2d.quality.meets
     warning = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warning) == 1 and "near outline 0" in warning[0] and "worst triangle at (" in warning[0]
+    # the skinning weights' mesh (no capacitance on it) says the same at the info level only
+    caplog.clear()
+    mesh2d = triangulate(sheet, Layout((outline,)), settings, auxiliary=True)
+    assert not mesh2d.quality.meets and "below the quality" in caplog.text
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]

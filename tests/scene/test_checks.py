@@ -153,12 +153,12 @@ def test_simulate_without_poses_says_nothing_to_simulate(tmp_path, capsys):
 
 def test_inverted_tets_name_the_pose(tmp_path, capsys):
     # glue_narrow's 10 mm strip on a cylinder of radius 2 mm, its deformation from 20 mm
-    # elastic elements (h/R = 10) folds a dielectric tet: the electrostatic error says which
+    # P1 elastic elements (h/R = 10) folds a dielectric tet: the electrostatic error says which
     # pose. (The default 5 mm elements folded one too until the 2D meshes kept a quality
     # bound, mscap/mesh/shape.py; they now read C(R2)/C(rest) = 1.19 where 0.4 mm reads 1.26.)
     scene = tmp_path / "glue_narrow.toml"
     scene.write_text((ROOT / "benchmarks" / "scenes" / "glue_narrow.toml").read_text().replace(
-        "[objects.strip]", "[elastic]\nedge_length_mm = 20.0\n\n[objects.strip]"))
+        "[objects.strip]", "[elastic]\nedge_length_mm = 20.0\norder = 1\n\n[objects.strip]"))
     assert main(["simulate", str(scene), "--poses", "cylinder_R2", "-q"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("mscap: error: pose 'cylinder_R2': ") and "inverted or degenerate" in err, err

@@ -80,7 +80,7 @@ def test_three_ranks_write_a_complete_file(three_ranks, capsys):
     progress = [line for line in done.stderr.splitlines() if line.startswith("[") and not line.startswith("[rank ")]
     assert len(progress) == 4 and progress[0].startswith("[1/4] k3_")
     # advice about the scene (P1 under pokes) once, from the first worker, not once per worker
-    advice = [line for line in done.stderr.splitlines() if "P1 elements read poke gains high" in line]
+    advice = [line for line in done.stderr.splitlines() if "P1 elements lock where the sheet bends" in line]
     assert len(advice) == 1 and advice[0].startswith("[rank 1] WARNING"), advice
     # Each ends with the runs left and the ETA (mscap.service.forecast), known from the
     # first finished run on and nothing after the last.
