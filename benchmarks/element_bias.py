@@ -65,7 +65,8 @@ name = "pose"
 """
 POSES = {
     "stretch": 'kind = "stretch"\nmode = "uniaxial"\nstretch = 1.5\ngrips = "roller"\n',
-    "poke": 'kind = "poke"\ncenter_mm = [20.0, 20.0]\nradius_mm = 5.0\ndepth_mm = 4.0\nheld_edges = ["x_min", "x_max"]\n',
+    "poke": ('kind = "poke"\ncenter_mm = [20.0, 20.0]\nradius_mm = 5.0\ndepth_mm = 4.0\n'
+             'held_edges = ["x_min", "x_max"]\n'),
 }
 
 

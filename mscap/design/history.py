@@ -15,11 +15,12 @@ __all__ = ["HISTORY_FIELDS", "Record", "min_pairwise_l1", "pairwise_l1"]
 #: (largest control displacement, mm), min pairwise L1 distance of the poses'
 #: capacitance vectors (pF), the event ("start", "step", "remesh", "cascade",
 #: "converged", "stalled", "max_iterations", "pruned"), evaluations in the line search, Newton iterations of all
-#: poses in the accepted evaluation, minimum 2D angle of the electrostatic mesh (deg),
-#: smallest gap between two outlines or an outline and the sheet edge (mm, exact: the
+#: poses in the accepted evaluation, minimum 2D angle of the electrostatic mesh (deg), the
+#: largest size ratio of two neighbouring triangles of it (:mod:`mscap.mesh.shape`; NaN in
+#: files written before 2026-12-05), smallest gap between two outlines or an outline and the sheet edge (mm, exact: the
 #: accepted layouts never overlap), wall time since the start (s).
 HISTORY_FIELDS = ("iteration", "level", "J", "d", "barrier", "smoothing", "grad_norm", "step_mm",
-                  "min_l1_pF", "event", "evaluations", "newton_iterations", "min_angle_deg", "min_gap_mm",
+                  "min_l1_pF", "event", "evaluations", "newton_iterations", "min_angle_deg", "size_ratio", "min_gap_mm",
                   "time_s")
 
 
@@ -40,6 +41,7 @@ class Record:
     min_angle_deg: float
     min_gap_mm: float
     time_s: float
+    size_ratio: float = float("nan")
 
     def row(self) -> list:
         return [getattr(self, name) for name in HISTORY_FIELDS]

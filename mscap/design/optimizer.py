@@ -39,7 +39,7 @@ import numpy as np
 from mscap.design.feasibility import feasible_step
 from mscap.design.history import Record
 from mscap.design.pipeline import Design, DesignError, Evaluation
-from mscap.design.remesh import min_angle, needs_remesh, remesh
+from mscap.design.remesh import min_angle, needs_remesh, remesh, size_ratio
 from mscap.errors import GeometryError, InvertedMeshError, MeshError
 from mscap.fem.elastic.problem import ElasticError
 from mscap.fem.electrostatic import ElectrostaticError
@@ -157,7 +157,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
         r = Record(iteration, level, e.J, e.d, e.barrier, e.smoothing, float(np.linalg.norm(g)), step,
                    e.min_l1_pF, event, evaluations, int(sum(e.newton_iterations)), angle,
                    min_gap_mm(design.deformer.outlines(e.q), design.scene.sheet_outline_mm),
-                   time.perf_counter() - started)
+                   time.perf_counter() - started, size_ratio(design, e.q))
         history.append(r)
         say(f"it {iteration:3d} L{level} {event:<9} J {e.J:+.6e} d {e.d:.5g} B {e.barrier:.3g} "
             f"S {e.smoothing:.3g} |g| {r.grad_norm:.3e} step {step:.3g} mm minL1 {e.min_l1_pF:.4g} pF "

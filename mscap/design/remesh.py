@@ -12,10 +12,10 @@ import numpy as np
 from mscap.design.pipeline import Design, Evaluation, build_design
 from mscap.geometry.layout import Layout, check_layout
 from mscap.geometry.polygons import turning
-from mscap.mesh.shape import triangle_angles_deg
+from mscap.mesh.shape import neighbour_size_ratios, triangle_angles_deg
 from mscap.mesh.transfer import interpolation_matrix
 
-__all__ = ["remesh", "resample_outline", "resampled_layout", "needs_remesh", "min_angle"]
+__all__ = ["remesh", "resample_outline", "resampled_layout", "needs_remesh", "min_angle", "size_ratio"]
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +106,13 @@ def min_angle(design: Design, q) -> tuple[float, float]:
         el = m.points + design.elastic_weights @ design.deformer._q(q)
         angle_el = float(triangle_angles_deg(el, m.triangles).min())
     return angle_fine, angle_el
+
+
+def size_ratio(design: Design, q) -> float:
+    """The largest size ratio of two neighbouring triangles of the electrostatic mesh at ``q``
+    (the quality :mod:`mscap.mesh.shape` keeps at ≤ 3 on a fresh mesh)."""
+    ratios, _ = neighbour_size_ratios(design.deformer.points2d(q), design.deformer.mesh2d.triangles)
+    return float(ratios.max(initial=1.0))
 
 
 def needs_remesh(design: Design, q, fresh: tuple[float, float], limit_deg: float) -> bool:

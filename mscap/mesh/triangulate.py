@@ -202,7 +202,8 @@ def _triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSet
         sheet_loop, sheet_curves = _add_loop(geo, sheet_outline_mm)
         sheet_surface = geo.addPlaneSurface([sheet_loop] + loops)
         plate_surfaces = [geo.addPlaneSurface([loop]) for loop in loops]
-        corner_points = [geo.addPoint(float(x), float(y), 0.0) for o in layout.outlines for x, y in o[geometry.turning(o, CORNER_TURN_DEG)]]
+        corner_points = [geo.addPoint(float(x), float(y), 0.0)
+                         for o in layout.outlines for x, y in o[geometry.turning(o, CORNER_TURN_DEG)]]
         geo.synchronize()
 
         field = gmsh.model.mesh.field
@@ -229,10 +230,10 @@ def _triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSet
             to_corner = field.add("Distance")
             field.setNumbers(to_corner, "PointsList", corner_points)
             # slope CORNER_SLOPE up to CORNER_REACH outline edges from the corner, then MAX_SLOPE
-            slope, reach = gentle * CORNER_SLOPE, CORNER_REACH * near
+            slope, steep, reach = gentle * CORNER_SLOPE, gentle * MAX_SLOPE, CORNER_REACH * near
             around = field.add("MathEval")
             field.setString(around, "F", f"max({near!r} + {slope!r} * F{to_corner}, "
-                                         f"{near!r} + {gentle * MAX_SLOPE!r} * F{to_corner} - {(gentle * MAX_SLOPE - slope) * reach!r})")
+                                         f"{near!r} + {steep!r} * F{to_corner} - {(steep - slope) * reach!r})")
             bounds.append(around)
         to_sheet = field.add("Distance")
         field.setNumbers(to_sheet, "CurvesList", sheet_curves)

@@ -10,7 +10,7 @@ import tomllib
 import h5py
 
 from mscap.errors import StoreError
-from mscap.service.schema import HISTORY_COLUMNS, RUN_DATASETS, SCHEMA_VERSION, TEMP_PREFIX
+from mscap.service.schema import HISTORY_COLUMNS, OPTIONAL_HISTORY, RUN_DATASETS, SCHEMA_VERSION, TEMP_PREFIX
 
 __all__ = ["REQUIRED_RUN_ATTRS", "REQUIRED_ROOT_ATTRS", "one_line", "run_problem", "damaged_runs", "check_store"]
 
@@ -48,7 +48,8 @@ def run_problem(store: h5py.File, rid: str, deep: bool = True) -> str | None:
         names = set(g)
         history = set(g["history"]) if "history" in names else set()
         missing = [n for n in RUN_DATASETS if "/" not in n and n != "finer_capacitance_pF" and n not in names] \
-            or [f"history/{n}" for n in HISTORY_COLUMNS if n not in history]  # finer_capacitance_pF: schema 2
+            or [f"history/{n}" for n in HISTORY_COLUMNS if n not in history and n not in OPTIONAL_HISTORY]
+        # finer_capacitance_pF: schema 2; OPTIONAL_HISTORY: files written before it
         if missing:
             return f"no dataset {missing[0]!r}"
         if deep:
@@ -70,7 +71,7 @@ def _shape_problem(g: h5py.Group, k: int, status: str) -> str | None:
             return f"dataset {name!r} has shape {g[name].shape}, not (n_poses, {k})"
     if status != "failed" and g["final_capacitance_pF"].shape[0] != g["poses"].shape[0]:
         return f"{g['final_capacitance_pF'].shape[0]} rows of final_capacitance_pF for {g['poses'].shape[0]} poses"
-    lengths = {g["history"][n].shape for n in HISTORY_COLUMNS}
+    lengths = {g["history"][n].shape for n in HISTORY_COLUMNS if n in g["history"]}
     if len(lengths) > 1 or any(len(shape) != 1 for shape in lengths):
         return f"history columns of different shapes {sorted(lengths)}"
     return None

@@ -14,7 +14,7 @@ from mscap.design.history import min_pairwise_l1, pairwise_l1, HISTORY_FIELDS
 from mscap.service.accuracy import relative_difference
 from mscap.service.selection import RunSummary, run_id
 
-__all__ = ["FORMAT", "SCHEMA_VERSION", "TEMP_PREFIX", "ROOT_ATTRS", "RUN_ATTRS", "RUN_DATASETS", "HISTORY_COLUMNS",
+__all__ = ["FORMAT", "SCHEMA_VERSION", "TEMP_PREFIX", "ROOT_ATTRS", "RUN_ATTRS", "RUN_DATASETS", "HISTORY_COLUMNS", "OPTIONAL_HISTORY",
            "SELECTION_ITEMS", "schema_markdown", "RunRecord", "record_from_result", "history_columns", "failed_record",
            "record_bytes",
            "run_summary"]
@@ -86,6 +86,9 @@ RUN_DATASETS = {
                          "a failed run's up to the failure"),
 }
 
+#: History columns added after schema 3's files were first written: a file without them
+#: reads them as NaN (and is not damaged for that).
+OPTIONAL_HISTORY = ("size_ratio",)
 #: History columns (``mscap.design.optimizer.HISTORY_FIELDS``) and their HDF5 types.
 HISTORY_COLUMNS = {name: ("str" if name == "event" else
                           "int64" if name in ("iteration", "level", "evaluations", "newton_iterations")

@@ -367,8 +367,10 @@ def read_run(store: h5py.File, rid: str) -> RunRecord:
 
 def _read_run(g: h5py.Group) -> RunRecord:
     a = g.attrs
+    rows = g["history"]["iteration"].shape[0]
     history = {name: (g["history"][name].asstr()[()].astype(object) if kind == "str"
-                      else g["history"][name][()]) for name, kind in HISTORY_COLUMNS.items()}
+                      else g["history"][name][()] if name in g["history"] else np.full(rows, np.nan))
+               for name, kind in HISTORY_COLUMNS.items()}  # OPTIONAL_HISTORY: NaN in older files
     return RunRecord(k=int(a["k"]), seed=int(a["seed"]), init=str(a["init"]), status=str(a["status"]),
                      error=str(a["error"]), reason=str(a["reason"]), wall_s=float(a["wall_s"]),
                      iterations=int(a["iterations"]), rank=int(a["rank"]),

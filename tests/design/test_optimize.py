@@ -423,6 +423,9 @@ def test_command_writes_every_output(poke_scene, tmp_path, capsys):
     with open(out / "history.csv") as f:
         rows = list(csv.reader(f))
     assert tuple(rows[0]) == HISTORY_FIELDS and len(rows) >= 3
+    # every record carries the quality of the mesh it was evaluated on (mscap.mesh.shape)
+    ratios = [float(row[HISTORY_FIELDS.index("size_ratio")]) for row in rows[1:]]
+    assert all(1.0 <= r < 6.0 for r in ratios), ratios
     outlines = json.loads((out / "outlines.json").read_text())["outlines_mm"]
     assert len(outlines) == 2
     assert (out / "layout.png").stat().st_size > 10_000

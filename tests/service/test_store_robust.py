@@ -281,10 +281,13 @@ def test_selection_is_current_after_every_run(scene_file, tmp_path, monkeypatch)
 
 def test_a_write_that_fails_despite_the_reservation_is_repaired_by_the_resume(tmp_path, free_poses_scene):
     """The residual risk: room taken away between the reservation and the write (here the
-    reservation is switched off under a 60 KB ``ulimit -f``). The failing write is one
+    reservation is switched off under a 55 KB ``ulimit -f``). The failing write is one
     StoreError naming the file, closing raises nothing over it, readers name the damaged
     run, and the resume drops it (rebuilding the file when even its name cannot be
-    deleted) and keeps every run stored before, whole."""
+    deleted) and keeps every run stored before, whole. (At some limits HDF5 itself dies
+    with SIGSEGV inside the failing write instead: 70 KB before the ``size_ratio`` history
+    column, 60–65 KB since; which offsets do depends on the file's layout. The reservation
+    is what keeps a real job from getting there.)"""
     scene = free_poses_scene(k_max=4)
     path = tmp_path / "bypassed.h5"
     script = textwrap.dedent(f"""
@@ -296,7 +299,7 @@ def test_a_write_that_fails_despite_the_reservation_is_repaired_by_the_resume(tm
         from tests.conftest import synthetic_record
         store = st.open_store({str(path)!r}, load_scene({str(scene.path)!r}))
         st.reserve = lambda *args: None
-        resource.setrlimit(resource.RLIMIT_FSIZE, (60000, 60000))
+        resource.setrlimit(resource.RLIMIT_FSIZE, (55000, 55000))
         try:
             for seed in range(100):
                 st.write_run(store, synthetic_record(2, seed))
