@@ -17,11 +17,11 @@ __all__ = ["HISTORY_FIELDS", "Record", "min_pairwise_l1", "pairwise_l1"]
 #: "converged", "stalled", "max_iterations", "pruned"), evaluations in the line search, Newton iterations of all
 #: poses in the accepted evaluation, minimum 2D angle of the electrostatic mesh (deg), the
 #: largest size ratio of two neighbouring triangles of it (:mod:`mscap.mesh.shape`; NaN in
-#: files written before 2026-12-05), smallest gap between two outlines or an outline and the sheet edge (mm, exact: the
-#: accepted layouts never overlap), wall time since the start (s).
+#: files written before 2026-12-05), smallest gap between two outlines or an outline and
+#: the sheet edge (mm, exact: the accepted layouts never overlap), wall time since the start (s).
 HISTORY_FIELDS = ("iteration", "level", "J", "d", "barrier", "smoothing", "grad_norm", "step_mm",
-                  "min_l1_pF", "event", "evaluations", "newton_iterations", "min_angle_deg", "size_ratio", "min_gap_mm",
-                  "time_s")
+                  "min_l1_pF", "event", "evaluations", "newton_iterations", "min_angle_deg", "size_ratio",
+                  "min_gap_mm", "time_s")
 
 
 @dataclass(frozen=True)

@@ -89,7 +89,6 @@ def rest_capacitance(scene: Scene, order: int | None = None, maxwell: bool = Fal
         coupled = for_couplings(scene.mesh, scene.layers[2].thickness_mm, scene.thickness_mm)
         if coupled is not scene.mesh:
             scene = replace(scene, mesh=coupled)
-            order = order or coupled.order
     order = order or scene.mesh.order
     start = time.perf_counter()
     mesh = mesh_scene(scene)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
-    "signed_area", "ccw", "turning", "edges", "segments_cross", "self_intersections",
+    "signed_area", "ccw", "turn_cosines", "turning", "edges", "segments_cross", "self_intersections",
     "points_in_polygon", "segment_projection", "point_segment_distance", "boundary_distance",
     "polygons_intersect", "coarsened", "arc_positions", "along_outline", "narrowest_neck", "square", "disk",
     "rounded_square",
@@ -27,12 +27,17 @@ def ccw(polygon: np.ndarray) -> np.ndarray:
     return polygon.copy() if signed_area(polygon) > 0 else polygon[::-1].copy()
 
 
-def turning(polygon: np.ndarray, degrees: float) -> np.ndarray:
-    """Mask of the vertices where a closed polygon turns by more than ``degrees``."""
+def turn_cosines(polygon: np.ndarray) -> np.ndarray:
+    """Cosine of the angle a closed polygon turns by at each vertex (1: straight on; minus
+    the cosine of the vertex's own angle)."""
     before = polygon - np.roll(polygon, 1, axis=0)
     after = np.roll(polygon, -1, axis=0) - polygon
-    cos = np.einsum("ij,ij->i", before, after) / (np.linalg.norm(before, axis=1) * np.linalg.norm(after, axis=1))
-    return cos < np.cos(np.radians(degrees))
+    return np.einsum("ij,ij->i", before, after) / (np.linalg.norm(before, axis=1) * np.linalg.norm(after, axis=1))
+
+
+def turning(polygon: np.ndarray, degrees: float) -> np.ndarray:
+    """Mask of the vertices where a closed polygon turns by more than ``degrees``."""
+    return turn_cosines(polygon) < np.cos(np.radians(degrees))
 
 
 def edges(polygon: np.ndarray) -> np.ndarray:

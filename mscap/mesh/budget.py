@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mscap.errors import MeshError, SceneError
-from mscap.mesh.triangulate import MAX_SLOPE
+from mscap.mesh.triangulate import quality_grading_mm
 from mscap.scene.settings import MAX_CAPACITORS
 
 if TYPE_CHECKING:
@@ -182,7 +182,7 @@ def estimate_mesh(sheet_outline_mm, plate_area_mm2: float, perimeter_mm: float, 
     far = _positive(settings.edge_length_mm, keys["edge"], path)
     near = _positive(settings.edge_length_outline_mm, keys["outline"], path)
     grading = _positive(settings.grading_distance_mm, keys["grading"], path)
-    grading = max(grading, (far - near) / MAX_SLOPE)  # as triangulate lengthens it for the mesh quality
+    grading = quality_grading_mm(settings)  # as triangulate lengthens it for the mesh quality
     slabs = _positive(slabs, keys["slabs"], path)
     fringe = settings.fringe_distance_mm or 0.0
     if fringe != 0:

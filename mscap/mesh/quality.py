@@ -85,8 +85,10 @@ def mesh_report(mesh: LayeredMesh, time_s: float) -> MeshReport:
         vertices=len(mesh.points), tets=len(mesh.tets),
         conductor_tets=int(np.count_nonzero(mesh.capacitor_of_tet >= 0)),
         capacitors=mesh.n_capacitors,
-        min_angle_2d_deg=float(triangle_angles_deg(mesh.mesh2d.points, mesh.mesh2d.triangles).min()),
-        max_size_ratio_2d=float(neighbour_size_ratios(mesh.mesh2d.points, mesh.mesh2d.triangles)[0].max(initial=1.0)),
+        min_angle_2d_deg=float(triangle_angles_deg(mesh.mesh2d.points, mesh.mesh2d.triangles).min())
+        if quality is None else quality.min_angle_deg,
+        max_size_ratio_2d=float(neighbour_size_ratios(mesh.mesh2d.points, mesh.mesh2d.triangles)[0].max(initial=1.0))
+        if quality is None else quality.max_size_ratio,
         quality_2d=verdict,
         min_dihedral_deg=float(dihedral_angles_deg(mesh.points, mesh.tets).min()),
         max_aspect_ratio=float(aspect_ratios(mesh.points, mesh.tets).max()),

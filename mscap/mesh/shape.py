@@ -26,7 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-from mscap.geometry.polygons import edges, point_segment_distance
+from mscap.geometry.polygons import edges, point_segment_distance, turn_cosines
 
 __all__ = ["MIN_ANGLE_DEG", "MAX_SIZE_RATIO", "triangle_angles_deg", "neighbour_size_ratios", "outline_angles_deg",
            "MeshQuality", "assess"]
@@ -67,10 +67,7 @@ def neighbour_size_ratios(points: np.ndarray, triangles: np.ndarray) -> tuple[np
 def outline_angles_deg(polygon: np.ndarray) -> np.ndarray:
     """The angle at each vertex of a closed polygon on its sharper side (degrees, ≤ 180):
     a triangle at that vertex, inside or outside, has an angle no larger."""
-    before = np.roll(polygon, 1, axis=0) - polygon
-    after = np.roll(polygon, -1, axis=0) - polygon
-    cos = np.einsum("ij,ij->i", before, after) / (np.linalg.norm(before, axis=1) * np.linalg.norm(after, axis=1))
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return np.degrees(np.arccos(np.clip(-turn_cosines(polygon), -1.0, 1.0)))
 
 
 @dataclass(frozen=True)
