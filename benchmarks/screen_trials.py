@@ -14,6 +14,11 @@ and compares J after every accepted step, the evaluations and the CPU seconds::
 
 Prints a Markdown table: steps, evaluations off → on, CPU seconds off → on, and whether
 the two paths are the same (J equal at every step) or where they part.
+
+``--setting resolve_steps`` compares the other switch of the line search the same way:
+``[optimizer] resolve_steps`` (a trial must lower J + δJ, the evaluation's estimated
+discretisation error, :mod:`mscap.design.resolution`); the table then also gives why each
+start stopped and its final min L1 with its estimated error.
 """
 
 from __future__ import annotations
@@ -33,8 +38,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):  # one core per process
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def child(scene_path: str, screen: bool, iterations: int | None, cascade: int | None, k: int | None,
-          seed: int) -> dict:
+def child(scene_path: str, setting: str, on: bool, iterations: int | None, cascade: int | None,
+          k: int | None, seed: int) -> dict:
     """One start, in this process: the scene's layout, or a Lloyd start of ``k`` plates."""
     sys.path.insert(0, str(ROOT))
     from mscap.design.optimizer import optimize
@@ -43,13 +48,14 @@ def child(scene_path: str, screen: bool, iterations: int | None, cascade: int | 
     from mscap.geometry.initial import initial_layout
 
     scene = load_scene(scene_path)
-    scene = replace(scene, optimizer=replace(scene.optimizer, screen_trials=screen))
+    scene = replace(scene, optimizer=replace(scene.optimizer, **{setting: on}))
     layout = None if k is None else initial_layout(scene, k, seed, "lloyd")
     cpu = time.process_time()
     result = optimize(build_design(scene, layout=layout), max_iterations=iterations, cascade_levels=cascade)
     return {"J": [r.J for r in result.history], "events": [r.event for r in result.history],
             "evaluations": int(sum(r.evaluations for r in result.history)), "steps": result.iterations,
-            "cpu_s": time.process_time() - cpu, "min_l1_pF": result.evaluation.min_l1_pF}
+            "cpu_s": time.process_time() - cpu, "min_l1_pF": result.evaluation.min_l1_pF,
+            "margin_error_pF": result.evaluation.margin_error_pF, "reason": result.reason}
 
 
 def compare(scene: str, args) -> dict:
@@ -57,6 +63,7 @@ def compare(scene: str, args) -> dict:
     extra = [] if args.max_iterations is None else ["--max-iterations", str(args.max_iterations)]
     extra += [] if args.cascade is None else ["--cascade", str(args.cascade)]
     extra += [] if args.k is None else ["--k", str(args.k), "--seed", str(args.seed)]
+    extra += ["--setting", args.setting]
     runs = {screen: subprocess.Popen([sys.executable, __file__, "--child", scene, screen] + extra,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
             for screen in ("on", "off")}
@@ -64,7 +71,7 @@ def compare(scene: str, args) -> dict:
     for screen, run in runs.items():
         stdout, stderr = run.communicate()
         if run.returncode:
-            sys.exit(f"{scene} (screening {screen}): failed\n{stderr[-3000:]}")
+            sys.exit(f"{scene} ({args.setting} {screen}): failed\n{stderr[-3000:]}")
         out[screen] = json.loads(stdout.strip().splitlines()[-1])
     return out
 
@@ -84,11 +91,24 @@ def main() -> None:
     parser.add_argument("--cascade", type=int, help="cascade levels (default: the scene's)")
     parser.add_argument("--k", type=int, help="a Lloyd start of K plates instead of the scene's layout")
     parser.add_argument("--seed", type=int, default=0, help="its seed (default 0)")
+    parser.add_argument("--setting", default="screen_trials", choices=("screen_trials", "resolve_steps"),
+                        help="the [optimizer] switch compared on and off (default screen_trials)")
     parser.add_argument("--child", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        scene, screen = args.child
-        print(json.dumps(child(scene, screen == "on", args.max_iterations, args.cascade, args.k, args.seed)))
+        scene, on = args.child
+        print(json.dumps(child(scene, args.setting, on == "on", args.max_iterations, args.cascade, args.k,
+                               args.seed)))
+        return
+    if args.setting == "resolve_steps":
+        print("| scene | steps (off / on) | stopped (off / on) | min L1 off / on (estimated error) | path |")
+        print("|---|---|---|---|---|")
+        for scene in args.scenes:
+            r = compare(scene, args)
+            off, on = r["off"], r["on"]
+            print(f"| {Path(scene).stem} | {off['steps']} / {on['steps']} | {off['reason']} / {on['reason']} | "
+                  f"{off['min_l1_pF']:.4g} / {on['min_l1_pF']:.4g} pF (±{on['margin_error_pF']:.2g}) | "
+                  f"{parted(off['J'], on['J'])} |", flush=True)
         return
     print("| scene | steps (off / on) | evaluations off → on | CPU off → on | min L1 off / on | path |")
     print("|---|---|---|---|---|---|")

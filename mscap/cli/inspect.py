@@ -5,6 +5,7 @@ run's history (:mod:`mscap.service.report`)."""
 from __future__ import annotations
 
 import json
+import math
 
 __all__ = ["add_parser", "run"]
 
@@ -26,9 +27,10 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from mscap.service.report import (cost, cost_text, error_estimates, history_text, narrow_necks,
-                                      narrow_necks_text, reading_choice, reading_plates, reading_text, runs_table,
-                                      silent_plates, silent_plates_text, summary_json, table)
+    from mscap.service.report import (cost, cost_text, error_estimates, history_text, margin_resolution,
+                                      narrow_necks, narrow_necks_text, reading_choice, reading_plates, reading_text,
+                                      resolution_text, runs_table, silent_plates, silent_plates_text, summary_json,
+                                      table)
     from mscap.service.store import finished_ids, read_run, read_store, run_summaries, store_selection
 
     with read_store(args.results) as store:
@@ -40,7 +42,7 @@ def run(args) -> int:
             return 0
         selection = store_selection(store)
         errors = error_estimates(store)
-        silent, necks, feature = [], [], 0.0
+        silent, necks, feature, resolution = [], [], 0.0, (math.nan, math.nan, 0.0)
         # How many plates of each design read its poses (a silent plate tells them nothing).
         summaries = run_summaries(store)
         designs = {r.id: read_run(store, r.id) for r in summaries if r.ok and not r.pruned}
@@ -51,6 +53,7 @@ def run(args) -> int:
             chosen = designs[selection.chosen_run]  # the best of its k: finished, not pruned
             silent = silent_plates(chosen.final_capacitance_pF)
             feature, necks = narrow_necks(chosen.final_outlines, str(store.attrs.get("scene_toml", "")))
+            resolution = margin_resolution(chosen)
         if args.json:
             document = summary_json(selection, errors, readings)
             document["by_reading_plates"] = {"plates": by_reading.plates, "run": by_reading.run,
@@ -59,11 +62,18 @@ def run(args) -> int:
             document["silent_plates"] = [{"plate": j, "mean_pF": m, "std_pF": sd} for j, m, sd in silent]
             document["narrow_necks"] = [{"plate": j, "width_mm": w, "feature_mm": feature} for j, w in necks]
             document["cost"] = cost(store).as_dict()
+            margin, error, noise = resolution
+            document["chosen_margin"] = {"min_l1_pF": margin if math.isfinite(margin) else None,
+                                         "bias_pF": error if math.isfinite(error) else None, "remesh_noise_pF": noise,
+                                         "resolved": bool(error + noise < margin) if math.isfinite(error) else None}
             print(json.dumps(document, indent=1))
         else:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
                                    f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors, readings))
             print(cost_text(cost(store)))
+            line = resolution_text(selection.chosen_run, *resolution) if selection.chosen_run else ""
+            if line:
+                print(line)
             if silent:
                 print(silent_plates_text(selection.chosen_run, silent))
                 print(reading_text(selection, readings))

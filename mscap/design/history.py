@@ -12,16 +12,19 @@ __all__ = ["HISTORY_FIELDS", "Record", "min_pairwise_l1", "pairwise_l1"]
 
 #: History columns, in order: iteration (accepted steps so far), cascade level, J and its
 #: parts (d in pF², barrier and smoothing unweighted, mm²), ‖dJ/dq‖ (2-norm), the step
-#: (largest control displacement, mm), min pairwise L1 distance of the poses'
-#: capacitance vectors (pF), the event ("start", "step", "remesh", "cascade",
-#: "converged", "stalled", "max_iterations", "pruned"), evaluations in the line search, Newton iterations of all
-#: poses in the accepted evaluation, minimum 2D angle of the electrostatic mesh (deg), the
-#: largest size ratio of two neighbouring triangles of it (:mod:`mscap.mesh.shape`; NaN in
-#: files written before 2026-12-05), smallest gap between two outlines or an outline and
-#: the sheet edge (mm, exact: the accepted layouts never overlap), wall time since the start (s).
+#: (largest control displacement, mm), min pairwise L1 distance of the poses' capacitance
+#: vectors (pF), the event ("start", "step", "remesh", "cascade", "converged", "stalled",
+#: "resolved", "max_iterations", "pruned"), evaluations in the line search, Newton
+#: iterations of all poses in the accepted evaluation, minimum 2D angle of the
+#: electrostatic mesh (deg), the largest size ratio of two neighbouring triangles of it
+#: (:mod:`mscap.mesh.shape`; NaN in files written before 2026-12-05), smallest gap between
+#: two outlines or an outline and the sheet edge (mm, exact: the accepted layouts never
+#: overlap), wall time since the start (s), the evaluation's estimated error of J and of
+#: min_l1_pF (pF) from :mod:`mscap.design.resolution` (NaN in files written before
+#: 2026-12-05).
 HISTORY_FIELDS = ("iteration", "level", "J", "d", "barrier", "smoothing", "grad_norm", "step_mm",
                   "min_l1_pF", "event", "evaluations", "newton_iterations", "min_angle_deg", "size_ratio",
-                  "min_gap_mm", "time_s")
+                  "min_gap_mm", "time_s", "error_J", "margin_error_pF")
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,8 @@ class Record:
     min_gap_mm: float
     time_s: float
     size_ratio: float = float("nan")
+    error_J: float = float("nan")
+    margin_error_pF: float = float("nan")
 
     def row(self) -> list:
         return [getattr(self, name) for name in HISTORY_FIELDS]

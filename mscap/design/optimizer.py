@@ -157,7 +157,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
         r = Record(iteration, level, e.J, e.d, e.barrier, e.smoothing, float(np.linalg.norm(g)), step,
                    e.min_l1_pF, event, evaluations, int(sum(e.newton_iterations)), angle,
                    min_gap_mm(design.deformer.outlines(e.q), design.scene.sheet_outline_mm),
-                   time.perf_counter() - started, size_ratio(design, e.q))
+                   time.perf_counter() - started, size_ratio(design, e.q), e.error_J, e.margin_error_pF)
         history.append(r)
         say(f"it {iteration:3d} L{level} {event:<9} J {e.J:+.6e} d {e.d:.5g} B {e.barrier:.3g} "
             f"S {e.smoothing:.3g} |g| {r.grad_norm:.3e} step {step:.3g} mm minL1 {e.min_l1_pF:.4g} pF "
@@ -203,13 +203,14 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                         p *= step_length / speed
                         speed = step_length
                     cap = min(1.0, settings.max_step_mm / speed)
-                    trial, alpha, tries, evaluations, inverted = _line_search(design, e, g, p, cap,
-                                                                              settings.screen_trials)
+                    search = dict(screen=settings.screen_trials, resolve=settings.resolve_steps)
+                    trial, alpha, tries, evaluations, inverted, unresolved = _line_search(design, e, g, p, cap,
+                                                                                          **search)
                     if trial is None and memory.pairs:
                         memory.reset()
                         p = -g * (settings.first_step_mm / float(np.linalg.norm(g, axis=1).max()))
-                        trial, alpha, more_tries, more, more_inverted = _line_search(design, e, g, p, 1.0,
-                                                                                     settings.screen_trials)
+                        trial, alpha, more_tries, more, more_inverted, unresolved = _line_search(design, e, g, p,
+                                                                                                 1.0, **search)
                         tries += more_tries
                         evaluations += more
                         inverted += more_inverted
@@ -219,7 +220,8 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                                  inverted, evaluations)
                         remesh_here(evaluations + 1)
                     elif trial is None:
-                        converged, reason = True, "stalled"
+                        # Every trial that lowered J raised its error bound more: the rest is unresolved.
+                        converged, reason = True, "resolved" if unresolved else "stalled"
                     else:
                         g_new = _gradient(design, trial)
                         memory.push((trial.q - e.q).ravel(), (g_new - g).ravel())
@@ -289,14 +291,17 @@ def _gradient(design: Design, e: Evaluation) -> np.ndarray:
 
 
 def _line_search(design: Design, e: Evaluation, g: np.ndarray, p: np.ndarray, alpha: float,
-                 screen: bool = False, max_trials: int = 8) -> tuple[Evaluation | None, float, int, int, int]:
+                 screen: bool = False, resolve: bool = False,
+                 max_trials: int = 8) -> tuple[Evaluation | None, float, int, int, int, int]:
     """Backtracking (Armijo, halving) from the largest feasible ``α ≤ alpha``; returns the
     accepted evaluation (or ``None``), α, the trials (the accepted one's number, else
-    ``max_trials``), the evaluations among them and how many of those failed on inverted
-    electrostatic tets. With ``screen``, a trial whose outline terms rise by more than
-    :data:`SCREEN_FACTOR` times the first-order gain of d is halved without being
-    evaluated; the α tried next is the same either way. (Retries at the minimiser of a
-    quadratic model of J were measured and dropped: docs/optimize.md.)"""
+    ``max_trials``), the evaluations among them, how many of those failed on inverted
+    electrostatic tets and how many lowered J but not J + δJ. With ``screen``, a trial
+    whose outline terms rise by more than :data:`SCREEN_FACTOR` times the first-order
+    gain of d is halved without being evaluated; the α tried next is the same either way.
+    With ``resolve``, the sufficient decrease is asked of J + δJ (the evaluation's
+    error bound, :mod:`mscap.design.resolution`) as well as of J. (Retries at the
+    minimiser of a quadratic model of J were measured and dropped: docs/optimize.md.)"""
     alpha = feasible_step(design, e.q, p, alpha)
     slope = float(np.vdot(g, p))
     if screen:
@@ -304,7 +309,7 @@ def _line_search(design: Design, e: Evaluation, g: np.ndarray, p: np.ndarray, al
         before = e.J + e.d  # J = −d + the outline terms
         # g = −∇d + ∇(outline terms): d's first-order gain per unit α is ∇(outline terms)·p − g·p.
         gain = max(float(np.vdot(design.outline_gradient(e.q), p)) - slope, 0.0)
-    inverted = evaluations = 0
+    inverted = evaluations = unresolved = 0
     for trial in range(1, max_trials + 1):
         q = e.q + alpha * p
         if screen:
@@ -325,8 +330,14 @@ def _line_search(design: Design, e: Evaluation, g: np.ndarray, p: np.ndarray, al
             inverted += isinstance(exc, InvertedMeshError)
             alpha *= 0.5
             continue
-        if candidate.J <= e.J + 1e-4 * alpha * slope:
-            return candidate, alpha, trial, evaluations, inverted
+        decrease = candidate.J <= e.J + 1e-4 * alpha * slope
+        if decrease and resolve and not candidate.J + candidate.error_J <= e.J + e.error_J + 1e-4 * alpha * slope:
+            log.info("line search: α = %.3g lowers J by %.3g but its error bound grows by %.3g; halving", alpha,
+                     e.J - candidate.J, candidate.error_J - e.error_J)
+            unresolved += 1
+            decrease = False
+        if decrease:
+            return candidate, alpha, trial, evaluations, inverted, unresolved
         candidate.release()
         alpha *= 0.5
-    return None, 0.0, max_trials, evaluations, inverted
+    return None, 0.0, max_trials, evaluations, inverted, unresolved

@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -38,6 +39,7 @@ from mscap.design.deformer import Deformer, build_deformer
 from mscap.design.history import min_pairwise_l1
 from mscap.design.objective import LayoutObjective, layout_objective
 from mscap.design.readback import design_scene
+from mscap.design.resolution import ErrorModel, error_model
 from mscap.errors import DesignError
 from mscap.fem.adjoint import moved, pose_rest_gradient
 from mscap.fem.elastic.problem import carried_displacement
@@ -61,7 +63,9 @@ class Evaluation:
     bound), ``barrier`` and ``smoothing`` (mm²) unweighted; ``capacitance_pF``
     ``(n_poses, k)`` over the design poses; ``sim`` holds the moved meshes and each
     pose's equilibrium with its kept factorisation (for :meth:`Design.gradient`, until
-    :meth:`release`; ``None`` once :meth:`detached`); ``newton_iterations`` per pose.
+    :meth:`release`; ``None`` once :meth:`detached`); ``newton_iterations`` per pose;
+    ``error_J`` and ``margin_error_pF``, the estimated discretisation error of J and of
+    :attr:`min_l1_pF` (:mod:`mscap.design.resolution`).
     """
 
     q: np.ndarray
@@ -74,6 +78,8 @@ class Evaluation:
     newton_iterations: tuple[int, ...]
     time_s: float
     released: bool = False
+    error_J: float = float("nan")
+    margin_error_pF: float = float("nan")
 
     @property
     def min_l1_pF(self) -> float:
@@ -191,8 +197,11 @@ class Design:
             raise DesignError(f"J = {parts.J} is not finite (d = {parts.d}, barrier = {parts.barrier}, "
                               f"smoothing = {parts.smoothing})")
         iterations = tuple(0 if r.state is None else r.state.newton_iterations for r in results)
+        errors = self.errors
+        error_J = errors.J_error(self.objective.capacitance.gradient(capacitance), capacitance, outlines)
         return Evaluation(q, parts.J, parts.d, parts.barrier, parts.smoothing, capacitance, sim, iterations,
-                          time.perf_counter() - started)
+                          time.perf_counter() - started, error_J=error_J,
+                          margin_error_pF=errors.margin_error(capacitance, outlines))
 
     def gradient(self, q_or_evaluation) -> np.ndarray:
         """``dJ/dq`` ``(c, 2)`` at an :class:`Evaluation` (or at ``q``, evaluated first)."""
@@ -220,6 +229,11 @@ class Design:
         if not np.isfinite(grad).all():
             raise DesignError(f"dJ/dq is not finite ({int((~np.isfinite(grad)).sum())} entries)")
         return grad
+
+    @cached_property
+    def errors(self) -> ErrorModel:
+        """The a-priori error model of this design's meshes and poses."""
+        return error_model(self.scene)
 
     def outline_gradient(self, q, dJ_doutlines=None) -> np.ndarray:
         """The outline part of ``dJ/dq`` ``(c, 2)``: ``w_b (B + B_area) + w_s S``

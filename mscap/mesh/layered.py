@@ -26,12 +26,13 @@ from mscap.geometry.polygons import coarsened
 from mscap.mesh.triangulate import TriMesh
 
 if TYPE_CHECKING:
-    from mscap.scene.settings import Scene
+    from mscap.scene.settings import MeshSettings, Scene
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LayeredMesh", "extrude", "prisms_of", "mesh_scene", "mesh_elastic", "elastic_layout", "level_heights", "layer_fractions",
-           "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
+__all__ = ["LayeredMesh", "extrude", "prisms_of", "mesh_scene", "mesh_elastic", "elastic_sizes", "elastic_layout",
+           "level_heights", "layer_fractions", "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER",
+           "TOP_PLATE_LAYER"]
 
 #: Layer indices (bottom to top) of the two conductive layers.
 BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER = 1, 3
@@ -268,14 +269,32 @@ def elastic_layout(layout: Layout, sheet_outline_mm: np.ndarray, spacing_mm: flo
 
 
 @timed("meshing")
+def elastic_sizes(scene: Scene) -> MeshSettings:
+    """The 2D sizes of the elastic mesh of its own: ``[elastic] edge_length_mm`` (outlines:
+    ``edge_length_outline_mm``, default half), no fringe grading; P1 refines under the balls
+    as the electrostatic mesh does (its ``zones``), P2 under the balls and along the held
+    edges where :func:`mscap.scene.sizing.refines_pokes` (:func:`~mscap.scene.sizing.p2_poke_refinement`)."""
+    from dataclasses import replace
+
+    from mscap.scene.sizing import p2_poke_refinement, refines_pokes
+
+    settings = scene.elastic
+    h = settings.edge_length_mm
+    outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
+    zones, strips = scene.mesh.zones, ()
+    if settings.order != 1:
+        zones, strips = p2_poke_refinement(scene.poses, scene.sheet_outline_mm, h) if refines_pokes(scene) \
+            else ((), ())
+    return replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0,
+                   zones=zones, strips=strips)
+
+
 def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
     """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
     "shared"``, else a triangulation with the outlines embedded (:func:`elastic_layout`),
     so every tet lies inside or outside a plate, at ``edge_length_mm`` (outlines:
     ``edge_length_outline_mm``, default half), extruded in ``elements_through_thickness``
     even slabs (0: the levels of ``mesh``)."""
-    from dataclasses import replace
-
     from mscap.mesh.budget import check_fits, estimate_elastic
     from mscap.mesh.triangulate import triangulate
 
@@ -283,13 +302,8 @@ def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
     if settings.mesh == "shared":
         return mesh
     check_fits(estimate_elastic(scene), scene.path)  # before gmsh
-    h = settings.edge_length_mm
-    outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
-    # The zones under the balls refine a P1 elastic mesh only: P2 reads jobs/poking.toml's
-    # gains as well without them (1.8 % against 1.7 % at 3.54 mm) at a quarter of the time.
-    zones = scene.mesh.zones if settings.order == 1 else ()
-    mesh2d = triangulate(scene.sheet_outline_mm, elastic_layout(scene.layout, scene.sheet_outline_mm, outline),
-                         replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0,
-                                 zones=zones))
+    sizes = elastic_sizes(scene)
+    mesh2d = triangulate(scene.sheet_outline_mm, elastic_layout(scene.layout, scene.sheet_outline_mm,
+                                                                sizes.edge_length_outline_mm), sizes)
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
                    slabs=settings.elements_through_thickness or None)

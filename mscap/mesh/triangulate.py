@@ -10,7 +10,8 @@ varies over the dielectric gap, so a uniform mesh overestimates capacitance. Wit
 distance of the outlines (where the fringe field lives) and at the ``grading_distance_mm``
 rate beyond it: the larger of two Threshold fields. Within ``zones`` (discs under poke
 balls) the edge length is at most the zone's size, growing at ZONE_SLOPE beyond (gmsh Ball
-fields, the smallest size wins).
+fields, the smallest size wins); within ``strips`` (boxes along held sheet edges) the same
+(gmsh Box fields).
 
 Three more bounds make the mesh meet :mod:`mscap.mesh.shape`'s quality whatever the
 plate, edge and gap geometry (gmsh's Frontal-Delaunay inserts points only in triangles
@@ -248,9 +249,15 @@ def _triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSet
         for x, y, radius, size in settings.zones:
             ball = field.add("Ball")
             for key, value in dict(XCenter=x, YCenter=y, ZCenter=0.0, Radius=radius, VIn=min(size, far), VOut=far,
-                                   Thickness=max(far - size, 0.0) / ZONE_SLOPE).items():
+                                   Thickness=max(far - size, 0.0) / (gentle * ZONE_SLOPE)).items():
                 field.setNumber(ball, key, value)
             bounds.append(ball)
+        for x0, y0, x1, y1, size in settings.strips:
+            box = field.add("Box")
+            for key, value in dict(XMin=x0, YMin=y0, XMax=x1, YMax=y1, ZMin=-1.0, ZMax=1.0, VIn=min(size, far),
+                                   VOut=far, Thickness=max(far - size, 0.0) / (gentle * ZONE_SLOPE)).items():
+                field.setNumber(box, key, value)
+            bounds.append(box)
         smallest = field.add("Min")
         field.setNumbers(smallest, "FieldsList", bounds)
         field.setAsBackgroundMesh(smallest)

@@ -165,7 +165,9 @@ class MeshSettings:
     ``fringe_slope`` (0: one ramp over ``grading_distance_mm``). ``zones``: ``(x, y,
     radius, size)`` discs (mm) within which no edge is longer than ``size``, growing at 0.5
     mm per mm beyond (under the balls of poke poses, :func:`mscap.scene.sizing.poke_zones`);
-    the electrostatic mesh and a P1 elastic mesh follow them. ``curvature_edge_mm``: the
+    the electrostatic mesh and a P1 elastic mesh follow them. ``strips``: ``(x_min, y_min,
+    x_max, y_max, size)`` boxes (mm) likewise (along the held edges of a P2 elastic mesh,
+    :func:`mscap.scene.sizing.p2_poke_refinement`). ``curvature_edge_mm``: the
     largest far edge the glued poses' bends allow (:func:`mscap.scene.sizing.curvature_edge`;
     ``None`` without a glued pose), which a tolerance's sizes keep to."""
 
@@ -180,6 +182,7 @@ class MeshSettings:
     overrides: tuple[tuple[str, float], ...] = ()
     zones: tuple[tuple[float, float, float, float], ...] = ()
     curvature_edge_mm: float | None = None
+    strips: tuple[tuple[float, float, float, float, float], ...] = ()
     #: The relative error the scene accepts on its pose-to-pose gains (``[mesh]
     #: signal_tolerance``); on a poked scene it chooses the elastic order and edge
     #: (:func:`mscap.scene.sizing.elastic_for_signal`). None: the elastic settings as given.
@@ -198,7 +201,10 @@ class ElasticSettings:
     the same outlines, ``edge_length_mm`` (outlines: ``edge_length_outline_mm``, default
     half of it) and ``elements_through_thickness`` even slabs through the whole stack (0:
     the electrostatic levels, one slab per layer times ``[mesh] elements_per_layer``).
-    ``"shared"`` solves on the electrostatic mesh itself.
+    ``"shared"`` solves on the electrostatic mesh itself. ``refine_pokes``: a P2 mesh of
+    its own is refined under each ball and along the edges a poke holds, when the
+    electrostatic mesh refines under the balls too (:func:`mscap.scene.sizing.refines_pokes`;
+    ``false``: uniform, as before 2026-12-05).
     The defaults come from benchmarks/elastic_error_vs_time.py (docs/elastic.md); a scene
     file that does not set ``elements_through_thickness`` gets :func:`auto_slabs`."""
 
@@ -212,6 +218,7 @@ class ElasticSettings:
     edge_length_mm: float = 5.0
     edge_length_outline_mm: float | None = None
     elements_through_thickness: int = 1
+    refine_pokes: bool = True
 
 
 def auto_slabs(layers) -> int:
@@ -266,7 +273,11 @@ class OptimizerSettings:
     (:class:`mscap.design.objective.SeparationBarrier`). ``screen_trials``: a line-search
     trial whose outline terms alone rise by more than twice what the capacitance term can
     gain to first order is rejected before it is simulated
-    (:data:`mscap.design.optimizer.SCREEN_FACTOR`; ``false``: simulate every trial)."""
+    (:data:`mscap.design.optimizer.SCREEN_FACTOR`; ``false``: simulate every trial).
+    ``resolve_steps``: a trial is accepted only if it also lowers J + δJ, its value plus
+    the evaluation's estimated discretisation error (:mod:`mscap.design.resolution`); a
+    level whose last line search failed only on that stops as ``"resolved"``
+    (``false``: Armijo on J alone, the behaviour before 2026-12-05)."""
 
     distance: str = "pF"
     tau_pF2: float = 1.0
@@ -291,6 +302,7 @@ class OptimizerSettings:
     keep_memory_at_remesh: bool = True
     min_feature_mm: float = 0.0
     screen_trials: bool = True
+    resolve_steps: bool = True
 
 
 @dataclass(frozen=True)

@@ -37,8 +37,9 @@ from mscap.scene.poses import PokePose
 from mscap.scene.settings import Layer, MeshSettings, Scene
 
 __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
-           "predicted_errors", "settings_for_tolerance", "sized", "with_layout", "poke_zones", "no_finer_than",
-           "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "bend_radius", "curvature_edge", "ElasticRung",
+           "predicted_errors", "rung_of", "settings_for_tolerance", "sized", "with_layout", "poke_zones",
+           "no_finer_than", "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "P2_ZONE_EDGE", "HELD_STRIP_FRACTION",
+           "HELD_STRIP_MM", "refines_pokes", "p2_poke_refinement", "bend_radius", "curvature_edge", "ElasticRung",
            "POKE_ELASTIC_LADDER", "BENDING_ELEMENT_ORDER", "elastic_for_signal", "COUPLING_RUNG", "for_couplings"]
 
 log = logging.getLogger(__name__)
@@ -160,6 +161,19 @@ def rung_settings(rung: Rung, gap_mm: float, stack_mm: float, far_mm: float = FA
     near = min(rung.outline_over_gap * gap_mm, far_mm)
     return MeshSettings(far_mm, near, max((far_mm - near) / STEEP, near), rung.elements_per_layer, rung.order,
                         fringe_distance_mm=FRINGE_STACKS * stack_mm, fringe_slope=rung.slope, element=rung.element)
+
+
+def rung_of(mesh: MeshSettings, gap_mm: float) -> Rung | None:
+    """The ladder rung ``mesh`` was sized on (order, element, slabs, slope and outline edge
+    over ``gap_mm``), or ``None`` for sizes set by hand or overridden."""
+    if mesh.tolerance is None:
+        return None
+    for rung in LADDER + TET_LADDER + (COUPLING_RUNG,):
+        if (rung.order == mesh.order and rung.element == mesh.element
+                and rung.elements_per_layer == mesh.elements_per_layer and rung.slope == mesh.fringe_slope
+                and abs(rung.outline_over_gap * gap_mm - mesh.edge_length_outline_mm) <= 1e-9 * gap_mm):
+            return rung
+    return None
 
 
 def predicted_errors(rung: Rung, outlines: Sequence[np.ndarray], gap_mm: float) -> np.ndarray:
@@ -299,10 +313,53 @@ POKE_ELASTIC_LADDER: tuple[ElasticRung, ...] = (
 #: 5 mm edge (benchmarks/element_bias.py, ν = 0.30 / 0.47 / 0.49), P1 at 5 mm reads a
 #: 5 mm ball's gain +22 / +34 / +48 % and a glued 15 mm cylinder's +0.5 / −6.9 / −10.7 %;
 #: P2 at 5 mm +5.9 / +8.3 / +11.6 % and +0.9 / +1.2 / +1.3 %, at 1.5–2× P1's wall (the poke's
-#: P1 refines under the ball, P2 does not). On jobs/poking.toml's hand-set meshes P2 reads
-#: the 16 gains within 2.2 % where P1 is 8–16 % high, at 25× P1's elastic time
-#: (docs/elastic.md, "Pokes and bends: P1 locks").
+#: P1 refines under the ball, P2 does not); P2 refined for the poke
+#: (:func:`p2_poke_refinement`) +1.0 / +2.5 / +3.8 % at 2.7–3× P1's wall. On
+#: jobs/poking.toml's hand-set meshes P2 reads the 16 gains within 2.2 % where P1 is
+#: 8–16 % high, at 25× P1's elastic time (docs/elastic.md, "Pokes and bends: P1 locks").
 BENDING_ELEMENT_ORDER = 2
+
+
+#: A P2 elastic mesh of its own under a poke (``[elastic] refine_pokes``): edges of at most
+#: P2_ZONE_EDGE · R within ZONE_RADII · R of each ball's centre, and of at most
+#: HELD_STRIP_FRACTION of the far edge within HELD_STRIP_MM of every edge a poke holds,
+#: both growing at 0.5 mm per mm beyond. P2's error at a 5 mm edge sits about half under
+#: the ball and half at the clamped edges (benchmarks/poke_zone_p2.py, docs/elastic.md
+#: "Pokes: where P2 errs"): on issue 44's 5 mm ball (ν = 0.47) uniform P2 reads +9.3 % at
+#: 5 mm and +4.3 % at 2.5 mm, the ball zone alone +5.1 %, both +3.5 % at 0.53× the wall of
+#: 2.5 mm; on jobs/poking.toml +3.7 % → +2.3 % for 1.1× the wall of uniform P2 at 5 mm.
+P2_ZONE_EDGE = 0.35
+HELD_STRIP_FRACTION = 0.5
+HELD_STRIP_MM = 1.0
+
+
+def refines_pokes(scene: Scene) -> bool:
+    """Whether ``scene``'s elastic mesh gets :func:`p2_poke_refinement`: a P2 mesh of its
+    own with ``refine_pokes``, beside an electrostatic mesh refined under the balls too
+    (its ``zones``: a tolerance or a signal tolerance). A finer deformation under a ball
+    sampled by a coarse electrostatic mesh moves the signal away from converged:
+    jobs/quick.toml's hand-set mesh has no zones, and the refined elastic mesh put its
+    initial layout's min L1 at 0.632 pF against 0.600 uniform, its finer-mesh check
+    reading 0.573 / 0.583 pF (docs/elastic.md)."""
+    elastic = scene.elastic
+    return elastic.order == 2 and elastic.mesh == "own" and elastic.refine_pokes and bool(scene.mesh.zones)
+
+
+def p2_poke_refinement(poses, sheet_outline_mm: np.ndarray, far_mm: float):
+    """The refinement a P2 elastic mesh with far edge ``far_mm`` gets for ``poses``: zones
+    ``(x, y, radius, size)`` under the balls and strips ``(x_min, y_min, x_max, y_max,
+    size)`` along the held edges (sizes not below what the far edge already gives)."""
+    pokes = [p for p in poses if isinstance(p, PokePose)]
+    zones = tuple((float(p.center_mm[0]), float(p.center_mm[1]), ZONE_RADII * p.radius_mm,
+                   P2_ZONE_EDGE * p.radius_mm) for p in pokes if P2_ZONE_EDGE * p.radius_mm < far_mm)
+    size = HELD_STRIP_FRACTION * far_mm
+    (x0, y0), (x1, y1) = np.min(sheet_outline_mm, axis=0), np.max(sheet_outline_mm, axis=0)
+    w = HELD_STRIP_MM
+    boxes = {"x_min": (x0 - w, y0 - w, x0 + w, y1 + w), "x_max": (x1 - w, y0 - w, x1 + w, y1 + w),
+             "y_min": (x0 - w, y0 - w, x1 + w, y0 + w), "y_max": (x0 - w, y1 - w, x1 + w, y1 + w)}
+    held = sorted({edge for p in pokes for edge in p.held_edges})
+    strips = tuple((*map(float, boxes[edge]), size) for edge in held)
+    return zones, strips
 
 
 def elastic_for_signal(tolerance: float, poses, order: int | None = None) -> tuple[ElasticRung, float] | None:

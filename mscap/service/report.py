@@ -12,9 +12,9 @@ import numpy as np
 from mscap.scene.calibration import NoiseModel
 from mscap.service.store import HISTORY_COLUMNS, finished_ids
 
-__all__ = ["error_estimates", "summary_json", "table", "runs_table", "history_text", "silent_plates",
-           "silent_plates_text", "Reading", "reading_plates", "reading_text", "ReadingChoice", "reading_choice",
-           "Cost", "cost", "cost_text"]
+__all__ = ["error_estimates", "margin_resolution", "resolution_text", "summary_json", "table", "runs_table",
+           "history_text", "silent_plates", "silent_plates_text", "Reading", "reading_plates", "reading_text",
+           "ReadingChoice", "reading_choice", "Cost", "cost", "cost_text"]
 
 #: A plate whose read-out varies over the design poses by less than this fraction of the
 #: per-reading offset noise (appendix A: ±2 pF uniform, σ = 1.15 pF) tells them nothing,
@@ -246,6 +246,31 @@ def narrow_necks_text(run_id: str, necks, feature: float) -> str:
     return "\n".join(f"  warning: plate {j} of {run_id} has a neck or slot {width:.3g} mm wide, narrower than "
                      f"{feature:g} mm: a stencil may not cut it (set [optimizer] min_feature_mm; docs/optimize.md, "
                      f"\"Necks\")" for j, width in necks)
+
+
+def margin_resolution(record) -> tuple[float, float, float]:
+    """A run's final min pairwise L1 (pF), its estimated discretisation bias (pF; the last
+    history row's ``margin_error_pF``, :mod:`mscap.design.resolution`; NaN in files
+    written before 2026-12-05) and its remesh noise: the largest change of min L1 at a
+    remesh, the same design on a fresh mesh (pF; 0 without a remesh)."""
+    history = record.history
+    errors = np.asarray(history.get("margin_error_pF", []), dtype=float)
+    l1 = np.asarray(history.get("min_l1_pF", []), dtype=float)
+    at = [i for i, event in enumerate(history.get("event", [])) if event == "remesh" and i > 0]
+    noise = float(np.abs(l1[at] - l1[np.array(at) - 1]).max()) if at else 0.0
+    return float(record.metric), float(errors[-1]) if len(errors) else math.nan, noise
+
+
+def resolution_text(run_id: str, metric: float, error: float, noise: float = 0.0) -> str:
+    """One line: whether the chosen design's margin exceeds its own estimated error,
+    bias and remesh noise together."""
+    if not np.isfinite(error) or not metric > 0:
+        return ""
+    verdict = ("resolved" if error + noise < metric else
+               "NOT resolved: its margin is within its own error; rerun with finer [mesh] / [elastic] settings")
+    return (f"  run {run_id}'s min L1 {metric:.4g} pF: estimated discretisation bias {error:.3g} pF "
+            f"({100 * error / metric:.1f} %, mscap.design.resolution), remesh noise up to {noise:.2g} pF "
+            f"({100 * noise / metric:.1f} %): {verdict}")
 
 
 def _percent(x: float) -> str:

@@ -88,7 +88,7 @@ RUN_DATASETS = {
 
 #: History columns added after schema 3's files were first written: a file without them
 #: reads them as NaN (and is not damaged for that).
-OPTIONAL_HISTORY = ("size_ratio",)
+OPTIONAL_HISTORY = ("size_ratio", "error_J", "margin_error_pF")
 #: History columns (``mscap.design.optimizer.HISTORY_FIELDS``) and their HDF5 types.
 HISTORY_COLUMNS = {name: ("str" if name == "event" else
                           "int64" if name in ("iteration", "level", "evaluations", "newton_iterations")

@@ -187,14 +187,14 @@ def test_line_search_counts_the_trials_the_mesh_stopped(monkeypatch):
     start = dataclasses.make_dataclass("E", [("J", float), ("q", object)])(1.0, np.zeros((1, 2)))
     g, p = np.array([[-2.0, 0.0]]), np.array([[1.0, 0.0]])  # J'(0) along p: -2
     line = Line()
-    accepted, alpha, trials, evaluations, inverted = _line_search(line, start, g, p, 1.0)
+    accepted, alpha, trials, evaluations, inverted, _ = _line_search(line, start, g, p, 1.0)
     assert line.tried == [1.0, 0.5, 0.25, 0.125] and trials == evaluations == 4 and inverted == 0
     assert accepted.J == pytest.approx(1 - 0.25 + 10 / 64)
     line = Line(fail=(1.0, 0.5))
-    _, alpha, trials, evaluations, inverted = _line_search(line, start, g, p, 1.0)
+    _, alpha, trials, evaluations, inverted, _ = _line_search(line, start, g, p, 1.0)
     assert line.tried == [1.0, 0.5, 0.25, 0.125] and inverted == 2
     line = Line(fail=tuple(0.5 ** n for n in range(8)))
-    assert _line_search(line, start, g, p, 1.0) == (None, 0.0, 8, 8, 8)
+    assert _line_search(line, start, g, p, 1.0) == (None, 0.0, 8, 8, 8, 0)
 
 
 def test_screening_skips_the_trials_the_outline_terms_reject(monkeypatch):
@@ -233,7 +233,7 @@ def test_screening_skips_the_trials_the_outline_terms_reject(monkeypatch):
     without = _line_search(plain, start, g, p, 1.0, screen=False)
     with_ = _line_search(screened, start, g, p, 1.0, screen=True)
     assert plain.tried == [1.0, 0.5, 0.25, 0.125] and screened.tried == [0.25, 0.125]
-    assert with_[1:] == (0.125, 4, 2, 0) and without[1:] == (0.125, 4, 4, 0)
+    assert with_[1:] == (0.125, 4, 2, 0, 0) and without[1:] == (0.125, 4, 4, 0, 0)
     assert with_[0].J == without[0].J == pytest.approx(1 - 0.25 + 10 / 64)
 
 

@@ -38,6 +38,10 @@ def tiny_scene() -> dict:
          "held_edges": ["x_min", "x_max"]},
         {"name": "pull", "kind": "stretch", "mode": "uniaxial", "stretch": 1.2, "grips": "roller"}]
     data["multistart"] = {"k_min": 2, "k_max": 3, "starts_per_k": 2}
+    # The service's bookkeeping, not the optimiser, is tested here: these P1 pokes at h =
+    # 1.5 R carry a 51 % bias (mscap.design.resolution), with which the line search's error
+    # guard ends most starts after a step, and runs that step a few times are needed.
+    data["optimizer"] = {"resolve_steps": False}
     return data
 
 

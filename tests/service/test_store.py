@@ -92,20 +92,23 @@ def test_round_trip(tmp_path, scene):
             assert ds.dtype.kind in "fiuO" and ds.dtype.names is None  # no compound, no opaque
 
 
-def test_a_run_written_before_the_size_ratio_column_reads_it_as_nan(tmp_path, scene):
-    """``history/size_ratio`` (the electrostatic mesh's quality, 2026-12-05) is absent from
-    files written before it: such a run reads back whole with NaN there and is not damaged."""
+@pytest.mark.parametrize("column", ["size_ratio", "error_J", "margin_error_pF"])
+def test_a_run_written_before_an_optional_column_reads_it_as_nan(tmp_path, scene, column):
+    """``history/size_ratio`` (the electrostatic mesh's quality), ``error_J`` and
+    ``margin_error_pF`` (the evaluation's estimated error, mscap.design.resolution; all
+    2026-12-05) are absent from files written before them: such a run reads back whole
+    with NaN there and is not damaged."""
     from mscap.service.checks import damaged_runs
 
     record = synthetic_record(3, 3007, "lloyd")
     with open_store(tmp_path / "r.h5", scene) as store:
         write_run(store, record)
     with h5py.File(tmp_path / "r.h5", "r+") as f:
-        del f["runs/k3_s3007_lloyd/history/size_ratio"]
+        del f[f"runs/k3_s3007_lloyd/history/{column}"]
     with read_store(tmp_path / "r.h5") as store:
         back = read_run(store, "k3_s3007_lloyd")
         assert damaged_runs(store) == {}
-    assert np.isnan(back.history["size_ratio"]).all() and len(back.history["size_ratio"]) == 5
+    assert np.isnan(back.history[column]).all() and len(back.history[column]) == 5
     np.testing.assert_array_equal(back.history["min_angle_deg"], record.history["min_angle_deg"])
 
 
