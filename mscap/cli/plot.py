@@ -9,8 +9,10 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub) -> None:
     p = sub.add_parser("plot", help="plot the best layout per k of a multi-start results file (HDF5)",
                        description="Draw a grid of the best optimised layout per k (sheet outline, plates "
-                                   "coloured, min pairwise L1 distance of the poses' capacitance vectors in "
-                                   "the title), the chosen k framed, and a panel of the best metric against "
+                                   "coloured, the metric in the title: the read-back bound in mm for a scene "
+                                   "designed for read-back, else the min pairwise L1 distance of the poses' "
+                                   "capacitance vectors in pF), the chosen k framed, and a panel of the best "
+                                   "metric against "
                                    "k with the plateau tolerance band of the chosen k (paper Fig. 10). "
                                    "The selection is recomputed from the stored runs (see docs/hdf5.md).")
     p.add_argument("results", help="results file (.h5)")

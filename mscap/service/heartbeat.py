@@ -29,7 +29,8 @@ HEARTBEAT_S = 20.0
 class Progress:
     """A start after an accepted step: its ``run`` id, ``k``, optimiser ``iteration``,
     metric (min pairwise L1, pF), its pruning ``score`` and whether the step is a pruning
-    ``rung`` (then the master answers with a verdict)."""
+    ``rung`` (then the master answers with a verdict); ``kind``, what the score is
+    (:func:`mscap.service.pruning.score_kind`: the read-back bound, the min L1 or J)."""
 
     run: str
     k: int
@@ -37,6 +38,17 @@ class Progress:
     min_l1_pF: float
     score: float
     rung: bool = False
+    kind: str = "min_l1"
+
+    @property
+    def objective(self) -> str:
+        """What the start optimises, as its progress line says it: "bound 0.31 mm",
+        "0.51 pF" (min L1) or "J -0.23 (min L1 0.51 pF)"."""
+        if self.kind == "bound":
+            return f"bound {self.score:.3g} mm"
+        if self.kind == "J":
+            return f"J {self.score:.4g} (min L1 {self.min_l1_pF:.4g} pF)"
+        return f"{self.min_l1_pF:.4g} pF"
 
 
 class Heartbeat:
@@ -65,7 +77,7 @@ class Heartbeat:
         for worker, (task, since) in sorted(busy.items()):
             run = getattr(task, "id", str(task))
             p = self.latest.get(run)
-            state = "setting up" if p is None else f"step {p.iteration}, {p.min_l1_pF:.4g} pF"
+            state = "setting up" if p is None else f"step {p.iteration}, {p.objective}"
             parts.append(f"rank {worker} {run}: {state}, {now - since:.0f} s")
         return "... " + "; ".join(parts)
 

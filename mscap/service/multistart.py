@@ -113,7 +113,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         def checkpoint(row) -> bool:
             rung = rule.enabled and rule.is_rung(row.iteration)
             verdict = ask(Progress(config.id, config.k, row.iteration, float(row.min_l1_pF),
-                                   float(score(kind, row.J, row.d, row.min_l1_pF)), rung))
+                                   float(score(kind, row.J, row.d, row.min_l1_pF)), rung, kind))
             if not rung:
                 return True
             verdicts.append(verdict)
@@ -313,8 +313,8 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             forecast.finished(rec.id, rec.wall_s, pruned=rec.status == "pruned",
                               history=rec.history if rec.status == "ok" else None)
             metric = f"{rec.metric:.4g} pF" if rec.ok else rec.error.splitlines()[0][:80]
-            if rec.ok and math.isfinite(rec.bound_mm):
-                metric += f", read-back bound {rec.initial_bound_mm:.3g} -> {rec.bound_mm:.3g} mm"
+            if rec.ok and math.isfinite(rec.bound_mm):  # designed for read-back: the bound first
+                metric = f"read-back bound {rec.initial_bound_mm:.3g} -> {rec.bound_mm:.3g} mm (min L1 {metric})"
             if rec.ok and math.isfinite(rec.error_estimate):
                 metric += f" (finer mesh: C within {100 * rec.error_estimate:.2g} %)"
             elif rec.status == "ok" and ms.error_estimate:
@@ -340,7 +340,8 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
     finally:
         store.close()  # on an error too, without writing more: the file holds what was stored
     choice = None if final.chosen_k is None else \
-        f"chosen k = {final.chosen_k} (run {final.chosen_run}); {final.verdict()}"
+        f"chosen k = {final.chosen_k} (run {final.chosen_run}); {final.verdict()}" + \
+        (f"\n{final.advice()}" if final.advice() else "")
     return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested, "choice": choice}
 
 

@@ -305,6 +305,8 @@ def table(selection, title: str = "", errors: dict | None = None, readings: dict
         lines.append(f"* chosen k = {selection.chosen_k}, run {selection.chosen_run}, plateau_tol "
                      f"{selection.plateau_tol:g}{note}; {selection.runs_total} runs")
         lines.append(f"  {selection.verdict()}")
+        if selection.advice():
+            lines.append(f"  {selection.advice()}")
         if bound:
             lines.append("  (read-back bound: soft max over the design family of the Cramér–Rao bound on the "
                          "RMS per-vertex error, mm; docs/optimize.md)")

@@ -169,6 +169,22 @@ class Selection:
     margin_error: float = math.nan
     finer_margin: float = math.nan
 
+    def advice(self) -> str:
+        """At a chosen k with no larger k to confirm its plateau (the largest k that
+        succeeded), what to do: how much the best design gained from the k below, and the
+        k_max to try. Empty when the plateau is confirmed or nothing was chosen."""
+        if self.chosen_k is None or self.plateau_reached:
+            return ""
+        what = "precision 1 / (read-back bound)" if self.by_bound else "min L1"
+        best = {s.k: (1.0 / s.best_bound_mm if self.by_bound and s.best_bound_mm else s.best_metric)
+                for s in self.per_k if (s.best_bound_mm if self.by_bound else s.best_metric)}
+        below = [k for k in best if k < self.chosen_k]
+        grew = "" if not below else (f"; its best {what} grew {_pct(best[self.chosen_k] / best[max(below)] - 1)} "
+                                     f"from k = {max(below)}")
+        return (f"the plateau is not confirmed: k = {self.chosen_k} is the largest k that succeeded{grew}. "
+                f"Raise [multistart] k_max to {self.chosen_k + 2} (at least {self.chosen_k + 1}): the rule "
+                f"needs a larger k that gains less than plateau_tol = {self.plateau_tol:g}")
+
     @property
     def resolved(self) -> bool | None:
         """Does the finer mesh pick the same k? ``None`` if it cannot tell."""

@@ -39,6 +39,14 @@ def test_lines_only_after_the_interval_of_silence_and_name_every_busy_worker():
     assert len(lines) == 3 and lines[-1].startswith("... rank 1")
 
 
+def test_progress_says_what_the_start_optimises():
+    """The read-back bound (mm) for a scene designed for it, the min L1 (pF) for the
+    paper's objective, J with the min L1 beside it for family poses in noise units."""
+    assert Progress("r", 3, 5, 0.51234, 0.3125, kind="bound").objective == "bound 0.312 mm"
+    assert Progress("r", 3, 5, 0.51234, -0.51234).objective == "0.5123 pF"
+    assert Progress("r", 3, 5, 0.51234, -2.5, kind="J").objective == "J -2.5 (min L1 0.5123 pF)"
+
+
 def test_no_line_when_idle_quiet_or_disabled():
     clock, lines = Clock(), []
     busy = {1: (StartConfig(2, 2000, "lloyd"), 0.0)}

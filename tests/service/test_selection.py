@@ -128,8 +128,12 @@ def test_select_best_per_k_and_chosen_run():
 
 
 def test_select_rising_is_not_confirmed():
+    """k_max chosen: the advice says how much the best grew from the k below and which
+    k_max to try; a confirmed plateau needs no advice."""
     sel = select(runs({(2, 1): 1.0, (3, 1): 2.0}), TOL)
     assert sel.chosen_k == 3 and not sel.plateau_reached
+    assert "min L1 grew 100.0 % from k = 2" in sel.advice() and "k_max to 5 (at least 4)" in sel.advice()
+    assert select(runs({(2, 1): 1.0, (3, 1): 1.01}), TOL).advice() == ""
 
 
 def test_select_all_failed():
