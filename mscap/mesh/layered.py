@@ -268,12 +268,12 @@ def elastic_layout(layout: Layout, sheet_outline_mm: np.ndarray, spacing_mm: flo
     return coarse
 
 
-@timed("meshing")
 def elastic_sizes(scene: Scene) -> MeshSettings:
     """The 2D sizes of the elastic mesh of its own: ``[elastic] edge_length_mm`` (outlines:
     ``edge_length_outline_mm``, default half), no fringe grading; P1 refines under the balls
     as the electrostatic mesh does (its ``zones``), P2 under the balls and along the held
-    edges where :func:`mscap.scene.sizing.refines_pokes` (:func:`~mscap.scene.sizing.p2_poke_refinement`)."""
+    edges where :func:`mscap.scene.sizing.refines_pokes`
+    (:func:`~mscap.scene.sizing.p2_poke_refinement`)."""
     from dataclasses import replace
 
     from mscap.scene.sizing import p2_poke_refinement, refines_pokes
@@ -289,6 +289,7 @@ def elastic_sizes(scene: Scene) -> MeshSettings:
                    zones=zones, strips=strips)
 
 
+@timed("meshing")
 def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
     """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
     "shared"``, else a triangulation with the outlines embedded (:func:`elastic_layout`),

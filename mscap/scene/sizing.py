@@ -325,7 +325,7 @@ BENDING_ELEMENT_ORDER = 2
 #: HELD_STRIP_FRACTION of the far edge within HELD_STRIP_MM of every edge a poke holds,
 #: both growing at 0.5 mm per mm beyond. P2's error at a 5 mm edge sits about half under
 #: the ball and half at the clamped edges (benchmarks/poke_zone_p2.py, docs/elastic.md
-#: "Pokes: where P2 errs"): on issue 44's 5 mm ball (ν = 0.47) uniform P2 reads +9.3 % at
+#: "Where P2 errs under a poke"): on issue 44's 5 mm ball (ν = 0.47) uniform P2 reads +9.3 % at
 #: 5 mm and +4.3 % at 2.5 mm, the ball zone alone +5.1 %, both +3.5 % at 0.53× the wall of
 #: 2.5 mm; on jobs/poking.toml +3.7 % → +2.3 % for 1.1× the wall of uniform P2 at 5 mm.
 P2_ZONE_EDGE = 0.35
