@@ -55,7 +55,7 @@ __all__ = ["ErrorModel", "error_model", "pose_error", "POKE_ERRORS", "BEND_ERROR
 #: the last, linear in h.
 POKE_ERRORS = {"P1": ((0.125, 0.072), (0.25, 0.107), (0.5, 0.20), (1.0, 0.356)),
                "P2": ((0.25, 0.015), (0.354, 0.019), (0.5, 0.044), (1.0, 0.093)),
-               "P2 refined": ((0.5, 0.023), (1.0, 0.035))}
+               "P2 refined": ((0.5, 0.019), (1.0, 0.027))}
 #: A glued bend's and a stretch's gain error at the 5 mm default edge, per order, ν = 0.47
 #: (docs/element_bias.csv: a 15 mm cylinder, which P1 under-reads; a 16 mm plate
 #: stretched 1.5×, whose stiffer carbon layers bend the field lines at its edges).
@@ -63,9 +63,10 @@ BEND_ERRORS = {1: -0.069, 2: 0.012}
 STRETCH_ERRORS = {1: 0.036, 2: 0.0089}
 #: How a poke's bias grows with ν, relative to ν = 0.47: (ν, factor) per element, the
 #: issue-44 poke's measured ratios (P1 +22 / +34 / +48 %, P2 +5.9 / +8.3 / +11.6 %, P2
-#: refined +1.0 / +3.5 / +3.8 % at 0.30 / 0.47 / 0.49); the P2 ratios serve the other loads.
+#: refined +0.6 / +1.7 / +2.4 % at 0.30 / 0.47 / 0.49, all against P2 at 1.25 mm); the P2
+#: ratios serve the other loads.
 NU_SCALE = {"P1": ((0.30, 0.64), (0.47, 1.0), (0.49, 1.39)), "P2": ((0.30, 0.71), (0.47, 1.0), (0.49, 1.40)),
-            "P2 refined": ((0.30, 0.29), (0.47, 1.0), (0.49, 1.09))}
+            "P2 refined": ((0.30, 0.37), (0.47, 1.0), (0.49, 1.43))}
 #: The edge the stretch and bend rows were measured at (mm).
 MEASURED_EDGE_MM = 5.0
 

@@ -320,7 +320,7 @@ def _warn_p1_bending(scene: Scene, order: int) -> None:
         _P1_WARNED.add((scene.path, "bending"))
         log.warning("%s: P1 elements lock where the sheet bends (poses %s): a 5 mm ball's gain reads +22-48 %% "
                     "and a glued 15 mm cylinder's -7-11 %% at nu = 0.47-0.49 with 5 mm elements, P2 (refined under "
-                    "the ball and along the held edges) +1-4 %% (+8-16 %% against +2 %% on jobs/poking.toml); "
+                    "the ball and along the held edges) +1-3 %% (+8-16 %% against +2 %% on jobs/poking.toml); "
                     "consider [elastic] order = 2 (docs/elastic.md)",
                     scene.name, ", ".join(bending), extra={"advice": True})
 

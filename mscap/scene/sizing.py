@@ -38,8 +38,8 @@ from mscap.scene.settings import Layer, MeshSettings, Scene
 
 __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
            "predicted_errors", "rung_of", "settings_for_tolerance", "sized", "with_layout", "poke_zones",
-           "no_finer_than", "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "P2_ZONE_EDGE", "HELD_STRIP_FRACTION",
-           "HELD_STRIP_MM", "refines_pokes", "p2_poke_refinement", "bend_radius", "curvature_edge", "ElasticRung",
+           "no_finer_than", "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "P2_ZONE_EDGE", "P2_ZONE_RADII",
+           "HELD_STRIP_EDGE_MM", "HELD_STRIP_MM", "refines_pokes", "p2_poke_refinement", "bend_radius", "curvature_edge", "ElasticRung",
            "POKE_ELASTIC_LADDER", "BENDING_ELEMENT_ORDER", "elastic_for_signal", "COUPLING_RUNG", "for_couplings"]
 
 log = logging.getLogger(__name__)
@@ -314,22 +314,25 @@ POKE_ELASTIC_LADDER: tuple[ElasticRung, ...] = (
 #: 5 mm ball's gain +22 / +34 / +48 % and a glued 15 mm cylinder's +0.5 / −6.9 / −10.7 %;
 #: P2 at 5 mm +5.9 / +8.3 / +11.6 % and +0.9 / +1.2 / +1.3 %, at 1.5–2× P1's wall (the poke's
 #: P1 refines under the ball, P2 does not); P2 refined for the poke
-#: (:func:`p2_poke_refinement`) +1.0 / +2.5 / +3.8 % at 2.7–3× P1's wall. On
+#: (:func:`p2_poke_refinement`) +0.6 / +1.7 / +2.4 % at 2.7–3× P1's wall. On
 #: jobs/poking.toml's hand-set meshes P2 reads the 16 gains within 2.2 % where P1 is
 #: 8–16 % high, at 25× P1's elastic time (docs/elastic.md, "Pokes and bends: P1 locks").
 BENDING_ELEMENT_ORDER = 2
 
 
 #: A P2 elastic mesh of its own under a poke (``[elastic] refine_pokes``): edges of at most
-#: P2_ZONE_EDGE · R within ZONE_RADII · R of each ball's centre, and of at most
-#: HELD_STRIP_FRACTION of the far edge within HELD_STRIP_MM of every edge a poke holds,
-#: both growing at 0.5 mm per mm beyond. P2's error at a 5 mm edge sits about half under
-#: the ball and half at the clamped edges (benchmarks/poke_zone_p2.py, docs/elastic.md
-#: "Where P2 errs under a poke"): on issue 44's 5 mm ball (ν = 0.47) uniform P2 reads +9.3 % at
-#: 5 mm and +4.3 % at 2.5 mm, the ball zone alone +5.1 %, both +3.5 % at 0.53× the wall of
-#: 2.5 mm; on jobs/poking.toml +3.7 % → +2.3 % for 1.1× the wall of uniform P2 at 5 mm.
+#: P2_ZONE_EDGE · R within P2_ZONE_RADII · R of each ball's centre, and of at most
+#: HELD_STRIP_EDGE_MM (half the far edge, if less) within HELD_STRIP_MM of every edge a
+#: poke holds, both growing at 0.5 mm per mm beyond. P2's error at a 5 mm edge sits about
+#: half under the ball and half at the clamped edges, whose bending boundary layer is a few
+#: stack thicknesses wide (benchmarks/poke_zone_p2.py, docs/elastic.md "Where P2 errs under
+#: a poke"; a sweep of 108 zone/strip/far-edge combinations): on issue 44's 5 mm ball
+#: uniform P2 reads +9.3 % at 5 mm and +4.3 % at 2.5 mm; this +2.7 % (ν = 0.47; +0.6 / +2.4 %
+#: at 0.30 / 0.49 against P2 at 1.25 mm) at 0.58× the wall of 2.5 mm; on jobs/poking.toml
+#: +3.7 % → +1.9 % at 0.32×. Strips of 2.5 mm and a zone of 1.5 R read +3.5 % / +2.2 %.
 P2_ZONE_EDGE = 0.35
-HELD_STRIP_FRACTION = 0.5
+P2_ZONE_RADII = 1.0
+HELD_STRIP_EDGE_MM = 2.0
 HELD_STRIP_MM = 1.0
 
 
@@ -350,9 +353,9 @@ def p2_poke_refinement(poses, sheet_outline_mm: np.ndarray, far_mm: float):
     ``(x, y, radius, size)`` under the balls and strips ``(x_min, y_min, x_max, y_max,
     size)`` along the held edges (sizes not below what the far edge already gives)."""
     pokes = [p for p in poses if isinstance(p, PokePose)]
-    zones = tuple((float(p.center_mm[0]), float(p.center_mm[1]), ZONE_RADII * p.radius_mm,
+    zones = tuple((float(p.center_mm[0]), float(p.center_mm[1]), P2_ZONE_RADII * p.radius_mm,
                    P2_ZONE_EDGE * p.radius_mm) for p in pokes if P2_ZONE_EDGE * p.radius_mm < far_mm)
-    size = HELD_STRIP_FRACTION * far_mm
+    size = min(HELD_STRIP_EDGE_MM, 0.5 * far_mm)
     (x0, y0), (x1, y1) = np.min(sheet_outline_mm, axis=0), np.max(sheet_outline_mm, axis=0)
     w = HELD_STRIP_MM
     boxes = {"x_min": (x0 - w, y0 - w, x0 + w, y1 + w), "x_max": (x1 - w, y0 - w, x1 + w, y1 + w),
