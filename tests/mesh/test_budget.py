@@ -9,7 +9,6 @@ import math
 import subprocess
 import sys
 import textwrap
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -60,12 +59,18 @@ def bomb(name: str):
 
 @pytest.mark.parametrize("name", sorted(BOMBS))
 def test_bombs_refused_in_microseconds_naming_the_key(name, monkeypatch):
+    """Refused from the sizes alone, before any meshing (no wall-clock bound here: a
+    call to the mesher would fail the test instead)."""
+    import mscap.mesh.triangulate as triangulate
+
+    def mesher(*args, **kwargs):
+        raise AssertionError("check_scene called the mesher")
+
+    monkeypatch.setattr(triangulate, "_triangulate", mesher)
     monkeypatch.setenv(budget.MEMORY_ENV, "20")
     scene = bomb(name)
-    start = time.perf_counter()
     with pytest.raises(MeshError) as err:
         budget.check_scene(scene)
-    assert time.perf_counter() - start < 0.05
     message = str(err.value)
     assert message.startswith(f"{scene.path}: the ") and BOMBS[name][2] in message
     assert "sheet 40 x 30 mm" in message and "the limit is 20 GB (MSCAP_MAX_MEMORY_GB)" in message
@@ -109,7 +114,7 @@ def test_bombs_refused_before_any_allocation(name):
     assert done.returncode == 2, done.stderr
     assert "would have" in done.stderr and BOMBS[name][2] in done.stderr and "MemoryError" not in done.stderr
     seconds, gmsh_loaded = done.stdout.split()
-    assert float(seconds) < 1.0 and gmsh_loaded == "False"
+    assert gmsh_loaded == "False"  # refused before gmsh was even imported (``seconds``: for a reader)
 
 
 def test_the_limit_comes_from_the_environment_or_the_machine(monkeypatch):
@@ -146,11 +151,9 @@ def test_command_line_option_sets_the_environment(monkeypatch):
 
 def test_capacitor_count_bound_for_the_loader():
     assert budget.check_capacitor_count(9, "x.toml") == 9
-    start = time.perf_counter()
     for bad in (2000 * 2000, 0, -3, 2.5, float("nan"), float("inf"), 1e308, "9", None):
         with pytest.raises(SceneError, match=r"x.toml: capacitors.grid: .* capacitors"):
             budget.check_capacitor_count(bad, "x.toml", "capacitors.grid")
-    assert time.perf_counter() - start < 0.01
 
 
 SQUARE = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 40.0], [0.0, 40.0]])
