@@ -16,6 +16,22 @@ def write_csv(rows, path: Path, fields) -> None:
             writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
 
 
+def tolerance_text(path: Path, tolerance: float = 0.01) -> str:
+    """A scene file's text with its three hand-set ``[mesh]`` sizes replaced by
+    ``tolerance = …`` (the mesh the size ladder picks, with zones under the balls)."""
+    lines, table = [], ""
+    for line in Path(path).read_text().splitlines():
+        if line.startswith("["):
+            table = line.strip()
+        if table == "[mesh]" and line.split("=")[0].strip() in ("edge_length_mm", "edge_length_outline_mm",
+                                                                 "grading_distance_mm"):
+            continue
+        lines.append(line)
+        if line.strip() == "[mesh]":
+            lines.append(f"tolerance = {tolerance!r}")
+    return "\n".join(lines) + "\n"
+
+
 def table_head(head: str) -> list[str]:
     """A Markdown table's header line and its rule."""
     return [head, "|" + "---|" * (head.count("|") - 1)]

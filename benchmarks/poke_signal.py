@@ -36,7 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._common import write_csv  # noqa: E402
+from benchmarks._common import tolerance_text, write_csv  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.fem.simulate import simulate  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
@@ -59,19 +59,9 @@ FIELDS = ["variant", "capacitor", "rest_pF", "pressed_gain_pF", "row_neighbour_g
 
 def tolerance_scene(path: Path) -> Path:
     """The scene file with its three ``[mesh]`` sizes replaced by ``tolerance = 0.01``."""
-    lines, table = [], ""
-    for line in path.read_text().splitlines():
-        if line.startswith("["):
-            table = line.strip()
-        if table == "[mesh]" and line.split("=")[0].strip() in ("edge_length_mm", "edge_length_outline_mm",
-                                                                 "grading_distance_mm"):
-            continue
-        lines.append(line)
-        if line.strip() == "[mesh]":
-            lines.append("tolerance = 0.01")
     out = ROOT / "out" / f"{path.stem}_tolerance.toml"
     out.parent.mkdir(exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
+    out.write_text(tolerance_text(path))
     return out
 
 

@@ -93,7 +93,7 @@ sys.path.insert(0, str(ROOT))
 
 import mscap.fem.simulate as simulate_module  # noqa: E402
 import mscap.mesh.layered as layered  # noqa: E402
-from benchmarks._common import table_head, write_csv  # noqa: E402
+from benchmarks._common import table_head, tolerance_text, write_csv  # noqa: E402
 from benchmarks.element_bias import scene_text  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.fem.profile import timed  # noqa: E402
@@ -270,17 +270,7 @@ def load_text(text: str):
 def poking_scene():
     """jobs/poking.toml at the 1 % electrostatic tolerance (zones under all four balls),
     poses rest and poke_0 only; and all its poses (for the elastic zones)."""
-    lines, table = [], ""
-    for line in (ROOT / "jobs" / "poking.toml").read_text().splitlines():
-        if line.startswith("["):
-            table = line.strip()
-        if table == "[mesh]" and line.split("=")[0].strip() in ("edge_length_mm", "edge_length_outline_mm",
-                                                                 "grading_distance_mm"):
-            continue
-        lines.append(line)
-        if line.strip() == "[mesh]":
-            lines.append("tolerance = 0.01")
-    scene = load_text("\n".join(lines) + "\n")
+    scene = load_text(tolerance_text(ROOT / "jobs" / "poking.toml"))
     return replace(scene, poses=scene.poses[:2]), scene.poses
 
 

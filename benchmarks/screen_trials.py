@@ -100,25 +100,23 @@ def main() -> None:
         print(json.dumps(child(scene, args.setting, on == "on", args.max_iterations, args.cascade, args.k,
                                args.seed)))
         return
-    if args.setting == "resolve_steps":
-        print("| scene | steps (off / on) | stopped (off / on) | min L1 off / on (estimated error) | path |")
-        print("|---|---|---|---|---|")
-        for scene in args.scenes:
-            r = compare(scene, args)
-            off, on = r["off"], r["on"]
-            print(f"| {Path(scene).stem} | {off['steps']} / {on['steps']} | {off['reason']} / {on['reason']} | "
-                  f"{off['min_l1_pF']:.4g} / {on['min_l1_pF']:.4g} pF (±{on['margin_error_pF']:.2g}) | "
-                  f"{parted(off['J'], on['J'])} |", flush=True)
-        return
-    print("| scene | steps (off / on) | evaluations off → on | CPU off → on | min L1 off / on | path |")
-    print("|---|---|---|---|---|---|")
+    resolve = args.setting == "resolve_steps"
+    middle = ("stopped (off / on) | min L1 off / on (estimated error)" if resolve else
+              "evaluations off → on | CPU off → on | min L1 off / on")
+    print(f"| scene | steps (off / on) | {middle} | path |")
+    print("|---|---|" + "---|" * (middle.count("|") + 1) + "---|")
     for scene in args.scenes:
         r = compare(scene, args)
         off, on = r["off"], r["on"]
-        print(f"| {Path(scene).stem} | {off['steps']} / {on['steps']} | {off['evaluations']} → {on['evaluations']} "
-              f"({on['evaluations'] / off['evaluations']:.2f}) | {off['cpu_s']:.0f} → {on['cpu_s']:.0f} s "
-              f"({off['cpu_s'] / on['cpu_s']:.2f}×) | {off['min_l1_pF']:.4g} / {on['min_l1_pF']:.4g} pF | "
-              f"{parted(off['J'], on['J'])} |", flush=True)
+        if resolve:
+            cells = (f"{off['reason']} / {on['reason']} | {off['min_l1_pF']:.4g} / {on['min_l1_pF']:.4g} pF "
+                     f"(±{on['margin_error_pF']:.2g})")
+        else:
+            cells = (f"{off['evaluations']} → {on['evaluations']} ({on['evaluations'] / off['evaluations']:.2f}) | "
+                     f"{off['cpu_s']:.0f} → {on['cpu_s']:.0f} s ({off['cpu_s'] / on['cpu_s']:.2f}×) | "
+                     f"{off['min_l1_pF']:.4g} / {on['min_l1_pF']:.4g} pF")
+        print(f"| {Path(scene).stem} | {off['steps']} / {on['steps']} | {cells} | {parted(off['J'], on['J'])} |",
+              flush=True)
 
 
 if __name__ == "__main__":

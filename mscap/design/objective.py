@@ -354,17 +354,21 @@ class LayoutObjective:
 
     def parts(self, capacitance_pF: np.ndarray, outline_terms: tuple[float, float]) -> ObjectiveParts:
         """J and its parts at capacitances ``(n_poses, k)`` and :meth:`outline_terms`."""
-        d = self.distance.value(capacitance_pF)
+        return self._parts(self.distance.value(capacitance_pF), outline_terms)
+
+    def parts_and_gradient(self, capacitance_pF: np.ndarray,
+                           outline_terms: tuple[float, float]) -> tuple[ObjectiveParts, np.ndarray]:
+        """:meth:`parts` and ∂J/∂C ``(n_poses, k)`` from one evaluation of the capacitance term."""
+        minus_d, dJ_dC = self.capacitance.value_and_gradient(capacitance_pF)
+        return self._parts(-minus_d, outline_terms), dJ_dC
+
+    def _parts(self, d: float, outline_terms: tuple[float, float]) -> ObjectiveParts:
         barrier, smoothing = outline_terms
         J = -d + self.barrier_weight * barrier + self.smoothing_weight * smoothing
         return ObjectiveParts(float(J), float(d), float(barrier), float(smoothing))
 
     def value(self, capacitance_pF: np.ndarray, outlines) -> float:
         return self.parts(capacitance_pF, self.outline_terms(outlines)).J
-
-    def gradients(self, capacitance_pF: np.ndarray, outlines) -> tuple[np.ndarray, tuple]:
-        """``(∂J/∂C (n_poses, k), ∂J/∂outline vertices (one (n_j, 2) per outline))``."""
-        return self.capacitance.gradient(capacitance_pF), self.geometry.value_and_gradient(outlines)[1]
 
     def max_step(self, outlines, directions, keep: float = 0.1) -> float:
         return self.barrier.max_step(outlines, directions, keep)

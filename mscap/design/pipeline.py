@@ -65,7 +65,8 @@ class Evaluation:
     pose's equilibrium with its kept factorisation (for :meth:`Design.gradient`, until
     :meth:`release`; ``None`` once :meth:`detached`); ``newton_iterations`` per pose;
     ``error_J`` and ``margin_error_pF``, the estimated discretisation error of J and of
-    :attr:`min_l1_pF` (:mod:`mscap.design.resolution`).
+    :attr:`min_l1_pF` (:mod:`mscap.design.resolution`); ``dJ_dC``, ∂J/∂C ``(n_poses, k)``,
+    which :meth:`Design.gradient` starts from.
     """
 
     q: np.ndarray
@@ -80,6 +81,7 @@ class Evaluation:
     released: bool = False
     error_J: float = float("nan")
     margin_error_pF: float = float("nan")
+    dJ_dC: np.ndarray | None = None
 
     @property
     def min_l1_pF(self) -> float:
@@ -192,16 +194,14 @@ class Design:
                 raise DesignError(f"pose {result.name!r}: capacitances {result.capacitance_pF} are not finite")
         sim = replace(sim, poses=results)
         capacitance = sim.capacitance_pF
-        parts = self.objective.parts(capacitance, outline_terms)
+        parts, dJ_dC = self.objective.parts_and_gradient(capacitance, outline_terms)
         if not np.isfinite(parts.J):
             raise DesignError(f"J = {parts.J} is not finite (d = {parts.d}, barrier = {parts.barrier}, "
                               f"smoothing = {parts.smoothing})")
         iterations = tuple(0 if r.state is None else r.state.newton_iterations for r in results)
-        errors = self.errors
-        error_J = errors.J_error(self.objective.capacitance.gradient(capacitance), capacitance, outlines)
+        error_J, margin_error = self.errors.estimate(dJ_dC, capacitance, outlines)
         return Evaluation(q, parts.J, parts.d, parts.barrier, parts.smoothing, capacitance, sim, iterations,
-                          time.perf_counter() - started, error_J=error_J,
-                          margin_error_pF=errors.margin_error(capacitance, outlines))
+                          time.perf_counter() - started, error_J=error_J, margin_error_pF=margin_error, dJ_dC=dJ_dC)
 
     def gradient(self, q_or_evaluation) -> np.ndarray:
         """``dJ/dq`` ``(c, 2)`` at an :class:`Evaluation` (or at ``q``, evaluated first)."""
@@ -209,7 +209,8 @@ class Design:
         if e.released:
             raise DesignError("this evaluation's factorisations were released; evaluate again")
         outlines = self.deformer.outlines(e.q)
-        dJ_dC, dJ_doutlines = self.objective.gradients(e.capacitance_pF, outlines)
+        dJ_dC = e.dJ_dC if e.dJ_dC is not None else self.objective.capacitance.gradient(e.capacitance_pF)
+        dJ_doutlines = self.objective.geometry.value_and_gradient(outlines)[1]
         # Capacitance part: one elastic adjoint per pose, to both rest meshes.
         g_fine = np.zeros_like(e.sim.mesh.points)
         g_elastic = None if e.sim.elastic is None else np.zeros((e.sim.elastic.n_vertices, 3))

@@ -126,18 +126,23 @@ class ErrorModel:
 
     def J_error(self, dJ_dC: np.ndarray, capacitance_pF: np.ndarray, outlines) -> float:
         """δJ = |Σ ∂J/∂C b|."""
-        return float(abs(np.sum(np.asarray(dJ_dC) * self.biases(capacitance_pF, outlines))))
+        return self.estimate(dJ_dC, capacitance_pF, outlines)[0]
 
     def margin_error(self, capacitance_pF: np.ndarray, outlines) -> float:
         """The error of the smallest pairwise L1 distance (pF), for the closest pair."""
+        return self.estimate(None, capacitance_pF, outlines)[1]
+
+    def estimate(self, dJ_dC: np.ndarray | None, capacitance_pF: np.ndarray, outlines) -> tuple[float, float]:
+        """:meth:`J_error` (NaN without ``dJ_dC``) and :meth:`margin_error`, from one :meth:`biases`."""
         c = np.asarray(capacitance_pF, dtype=float)
+        bias = self.biases(c, outlines)
+        error_J = float("nan") if dJ_dC is None else float(abs(np.sum(np.asarray(dJ_dC) * bias)))
         if len(c) < 2:
-            return 0.0
+            return error_J, 0.0
         a, b = np.triu_indices(len(c), 1)
         closest = int(np.argmin(np.abs(c[a] - c[b]).sum(axis=1)))
         a, b = a[closest], b[closest]
-        bias = self.biases(c, outlines)
-        return float(abs(np.sum(np.sign(c[a] - c[b]) * (bias[a] - bias[b]))))
+        return error_J, float(abs(np.sum(np.sign(c[a] - c[b]) * (bias[a] - bias[b]))))
 
 
 def error_model(scene) -> ErrorModel:
