@@ -66,11 +66,14 @@ for v in "$SCENE" "$OUTDIR" "$MSCAP_REPO" "$MSCAP_VENV"; do
     [[ "$v" != *,* ]] || die "paths must not contain commas (sbatch --export): $v"
 done
 
-# k range and starts per k from the scene's [multistart] table when not given.
-read -r scene_kmin scene_kmax scene_starts < <(python3 - "$SCENE" <<'PY' 2>/dev/null || echo "2 6 25"
+# k range and starts per k from the scene's [multistart] table when not given; whether the
+# multi-start ends by calibrating its designs ([calibration] and calibrate_best > 0).
+read -r scene_kmin scene_kmax scene_starts calibrates < <(python3 - "$SCENE" <<'PY' 2>/dev/null || echo "2 6 25 0"
 import sys, tomllib
-m = tomllib.load(open(sys.argv[1], "rb")).get("multistart", {})
-print(m.get("k_min", 2), m.get("k_max", 6), m.get("starts_per_k", 25))
+data = tomllib.load(open(sys.argv[1], "rb"))
+m = data.get("multistart", {})
+calibrates = int("calibration" in data and m.get("calibrate_best", 3) > 0)
+print(m.get("k_min", 2), m.get("k_max", 6), m.get("starts_per_k", 25), calibrates)
 PY
 )
 K_MIN="${K_MIN:-$scene_kmin}"
@@ -144,10 +147,13 @@ q() { local s="${1//\'/\'\\\'\'}"; printf "'%s'" "$s"; }
 plist=""
 for p in "${parts[@]}"; do plist+=" $(q "$p")"; done
 merge_cmd="set -eu; cd $(q "$MSCAP_REPO"); if [ -x $(q "$MSCAP_VENV/bin/mscap") ]; then PATH=$(q "$MSCAP_VENV/bin"):\$PATH; fi; set --; for f in$plist; do if [ -e \"\$f\" ]; then set -- \"\$@\" \"\$f\"; else echo \"mscap merge: missing part \$f (its array task failed?)\" >&2; fi; done; if [ \$# -eq 0 ]; then echo 'mscap merge: no parts to merge' >&2; exit 1; fi; mscap merge \"\$@\" -o $(q "$MERGED") --force"
+# A part runs some starts only and does not calibrate: the merged file's `mscap run` does
+# (every run is stored, only the calibration is left; docs/calibration.md).
+(( calibrates )) && merge_cmd+="; mscap run $(q "$SCENE") -o $(q "$MERGED")"
 
 merge_out="$(sbatch --parsable --dependency="afterany:$array_id" --job-name=mscap-merge \
     --ntasks=1 --time=00:30:00 --output="mscap-merge-%j.out" --wrap="$merge_cmd")"
 merge_id="$(job_id "$merge_out")"
 
 echo "array job $array_id: --array=$array, ${#parts[@]} parts in $OUTDIR"
-echo "merge job $merge_id: after job $array_id ends, mscap merge -> $MERGED"
+echo "merge job $merge_id: after job $array_id ends, mscap merge -> $MERGED$( (( calibrates )) && echo ", then mscap run calibrates its best designs")"

@@ -13,7 +13,8 @@ training capacitances and scores the sequence under the noise model.
 Cache layout (``format = "mscap-calibration"``)::
 
     /                      attrs: format, schema_version, physics_sha256, family_sha256
-    /designs/<key>         attrs: label, k; outline_points_mm, outline_offsets,
+    /designs/<key>         (key: layout_<outline hash>) attrs: label (the first), k;
+                           outline_points_mm, outline_offsets,
                            training_capacitance_pF (n_train, k), training_done (n_train,),
                            sequence_capacitance_pF (n_seq, k), sequence_done (n_seq,),
                            training_wall_s, sequence_wall_s (per pose, s)
@@ -53,7 +54,7 @@ __all__ = ["CalibrationError", "Candidate", "FAMILIES", "families", "physics_sha
 log = logging.getLogger(__name__)
 
 FORMAT = "mscap-calibration"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: designs keyed by their outlines alone
 FAMILIES = ("training", "sequence")
 
 
@@ -70,11 +71,13 @@ class Candidate:
 
     @property
     def key(self) -> str:
-        """HDF5 group name of the design (outline hash: a changed layout is a new entry)."""
+        """HDF5 group name of the design: the hash of its outlines alone, so a changed layout
+        is a new entry and the same layout under another label (a run's design calibrated
+        by the multi-start, then by `mscap calibrate` as "(optimised)") is simulated once."""
         h = hashlib.sha256()
         for outline in self.outlines:
             h.update(np.ascontiguousarray(outline, dtype=float).tobytes())
-        return f"{self.label.replace(':', '__').replace('/', '_')}_{h.hexdigest()[:12]}"
+        return f"layout_{h.hexdigest()[:16]}"
 
 
 def settings(scene: Scene) -> CalibrationSettings:
@@ -228,12 +231,13 @@ def _chunks(todo: np.ndarray, size: int) -> list[tuple[int, int]]:
 
 
 def simulate_family(scene: Scene, designs: list[Candidate], cache_path, comm=None,
-                    progress: Callable[[str], None] | None = None) -> None:
+                    progress: Callable[[str], None] | None = None) -> bool | None:
     """Simulate every design's training and sequence poses that the cache lacks.
 
     Under ``mpirun`` rank 0 writes the cache and the other ranks simulate; with one rank
     everything runs here. Returns on every rank when done (or when stopped by SIGTERM,
-    after which a rerun completes the rest).
+    after which a rerun completes the rest): on rank 0 whether every pose is simulated
+    (``False``: stopped), ``None`` on the others.
     """
     # MPI before any file is open: a singleton MPI start forks OpenMPI's orted, which
     # would inherit the open cache and hold its HDF5 lock for the life of the process.
@@ -244,7 +248,7 @@ def simulate_family(scene: Scene, designs: list[Candidate], cache_path, comm=Non
     names = families(scene)
     poses_of = {which: family(scene, which) for which in names}
 
-    def master(execute, stop) -> None:
+    def master(execute, stop) -> bool:
         cache = _open_cache(cache_path, scene)
         try:
             sizes = {which: len(poses_of[which]) for which in names}
@@ -278,11 +282,12 @@ def simulate_family(scene: Scene, designs: list[Candidate], cache_path, comm=Non
                     + f"; ETA {eta:.0f} s")
 
             execute(tasks, record)
+            return not stop.requested
         finally:
             cache.close()
 
-    farm.run(comm, lambda ask: _work(scene, designs, poses_of), master,
-             "stopped: the finished poses are cached; rerun the same command to complete the rest", say)
+    return farm.run(comm, lambda ask: _work(scene, designs, poses_of), master,
+                    "stopped: the finished poses are cached; rerun the same command to complete the rest", say)
 
 
 def read_cache(cache_path, design: Candidate, names=FAMILIES) -> dict[str, np.ndarray]:
@@ -320,8 +325,10 @@ class DesignScore:
     features: Features | None = None  # the map's whitened directions (None: raw read-outs)
 
 
-def evaluate(scene: Scene, designs: list[Candidate], cache_path, noise=None) -> list[DesignScore]:
-    """Fit and score every design from the cache (``noise`` overrides the scene's)."""
+def evaluate(scene: Scene, designs: list[Candidate], cache_path, noise=None, seeds=()) -> list[DesignScore]:
+    """Fit and score every design from the cache (``noise`` overrides the scene's). With
+    ``seeds``, each design's map is scored once per noise seed (the fit does not depend on
+    the noise draws) and ``errors`` holds the runs of every seed, seed after seed."""
     cal = settings(scene)
     noise = noise or cal.noise
     train_y, dim = targets(scene, "training")
@@ -348,8 +355,10 @@ def evaluate(scene: Scene, designs: list[Candidate], cache_path, noise=None) -> 
             if not (noise_std > 0).all():  # noise-free read-outs: the interpolant, the limit σ → 0
                 noise_std, smoothing = None, 0.0
         model = fit(features, train_y[ok_train], cal.kernel, smoothing, noise_std, cal.min_spread)
-        errors = score(model, c_seq[ok_seq], seq_y[ok_seq], dim, noise, reference_pF=c_ref)
-        full_mean = np.full((noise.runs, len(c_seq)), np.nan)
+        parts = [score(model, c_seq[ok_seq], seq_y[ok_seq], dim, replace(noise, seed=seed), reference_pF=c_ref)
+                 for seed in (seeds or (noise.seed,))]
+        errors = PoseErrors(np.vstack([e.mean for e in parts]), np.vstack([e.max for e in parts]))
+        full_mean = np.full((len(errors.mean), len(c_seq)), np.nan)
         full_max = full_mean.copy()
         full_mean[:, ok_seq], full_max[:, ok_seq] = errors.mean, errors.max
         no_signal = point_errors(train_y[ok_train].mean(axis=0)[None], seq_y, dim).mean(axis=1)

@@ -53,9 +53,13 @@ def run(args) -> int:
         any_silent = any(r.silent for r in readings.values())
         if selection.chosen_run is not None:
             chosen = designs[selection.chosen_run]  # the best of its k: finished, not pruned
-            silent = silent_plates(chosen.final_capacitance_pF)
-            feature, necks = narrow_necks(chosen.final_outlines, str(store.attrs.get("scene_toml", "")))
-            resolution = margin_resolution(chosen)
+            # Calibration may choose the run's initial layout (mscap.service.calibrated).
+            initial = selection.chosen_which == "initial"
+            silent = silent_plates(chosen.initial_capacitance_pF if initial else chosen.final_capacitance_pF)
+            feature, necks = narrow_necks(chosen.initial_outlines if initial else chosen.final_outlines,
+                                          str(store.attrs.get("scene_toml", "")))
+            if not initial:  # the optimiser's history speaks of its final design
+                resolution = margin_resolution(chosen)
         if args.json:
             document = summary_json(selection, errors, readings)
             document["by_reading_plates"] = {"plates": by_reading.plates, "run": by_reading.run,
@@ -73,14 +77,14 @@ def run(args) -> int:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
                                    f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors, readings))
             print(cost_text(cost(store)))
-            line = resolution_text(selection.chosen_run, *resolution) if selection.chosen_run else ""
+            line = resolution_text(selection.chosen_run, *resolution) if selection.chosen_which == "final" else ""
             if line:
                 print(line)
             if silent:
-                print(silent_plates_text(selection.chosen_run, silent))
+                print(silent_plates_text(selection.chosen_design, silent))
                 print(reading_text(selection, readings))
             if any_silent:
                 print(by_reading.text(selection.chosen_k))
             if necks:
-                print(narrow_necks_text(selection.chosen_run, necks, feature))
+                print(narrow_necks_text(selection.chosen_design, necks, feature))
     return 0

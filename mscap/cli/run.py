@@ -29,6 +29,11 @@ def add_parser(sub) -> None:
     p.add_argument("--check-all-runs", action="store_true",
                    help="run the finer-mesh check on every run (default: only on runs not already beaten by a "
                         "finished run of their k, the only ones that can be a k's best)")
+    p.add_argument("--calibrate-best", type=int, metavar="N",
+                   help="in a scene with [calibration]: calibrate the best N runs of each k (with their initial "
+                        "layouts and the scene's layout) at the end and choose the design and k on calibrated "
+                        "read-back error; 0: choose by the objective alone (default: the scene's "
+                        "[multistart] calibrate_best, 3)")
     p.add_argument("--max-iterations", type=int, help="L-BFGS iterations per level (default: the scene's)")
     p.add_argument("--force", action="store_true", help="start the file over even if it holds another scene")
     p.add_argument("--retry-failed", action="store_true", help="run the starts stored as failed again")
@@ -50,7 +55,7 @@ def run(args) -> int:
 
     comm = MPI.COMM_WORLD
     scene = with_overrides(load_scene_for(args), args.starts_per_k, args.prune, args.keep_repeated_starts,
-                           args.check_all_runs)
+                           args.check_all_runs, args.calibrate_best)
     index_of = {c.id: i % max(scene.multistart.starts_per_k, 1) for i, c in enumerate(configurations(scene))}
     lo, hi = 0, None
     if args.seeds:
@@ -72,7 +77,8 @@ def run(args) -> int:
                 handler.addFilter(lambda record: not getattr(record, "advice", False))
     say = progress_printer(args.quiet or rank > 0)
     summary = run_multistart(scene, args.output, comm, force=args.force, retry_failed=args.retry_failed,
-                             select_configs=keep, max_iterations=args.max_iterations, progress=say,
+                             select_configs=None if (args.k_min, args.k_max, args.seeds) == (None, None, None)
+                             else keep, max_iterations=args.max_iterations, progress=say,
                              heartbeat_s=args.heartbeat)
     if rank == 0 and not args.quiet:
         print(f"{args.output}: {summary['runs_done']} runs this time ({summary['runs_failed']} failed)"

@@ -30,7 +30,8 @@ from mscap.scene.settings import (BALL_EDGE_RATIO, DEFAULT_FAMILY_COUNT, DEFAULT
                                   DISTANCES, ELASTIC_MESHES, HESSIAN_MODES, LAYER_KINDS, LAYER_THICKNESS_MM,
                                   MAX_CAPACITORS, MAX_CASCADE_LEVELS, MAX_CUTS, MAX_ITERATIONS, MAX_LENGTH_MM,
                                   MAX_NAME_LENGTH, MAX_OUTLINE_VERTICES, MAX_RELATIVE_PERMITTIVITY, MAX_SCENE_BYTES,
-                                  MAX_SEED, MAX_SLABS, MAX_STARTS_PER_K, MIN_LENGTH_MM, PETSC_TYPES, POSE_KINDS,
+                                  MAX_CALIBRATE_SEEDS, MAX_SEED, MAX_SLABS, MAX_STARTS_PER_K, MIN_LENGTH_MM,
+                                  PETSC_TYPES, POSE_KINDS,
                                   POSE_NAME_PATTERN, SKINNING_METHODS, YOUNGS_MODULUS_MPA, ElasticSettings, Layer,
                                   Material, MeshSettings, MultistartSettings, OptimizerSettings, Scene, auto_slabs)
 
@@ -607,6 +608,12 @@ def check_multistart(path: str, multistart: MultistartSettings) -> None:
     if multistart.prune_rule not in PRUNE_RULES:
         raise SceneError(path, "multistart.prune_rule",
                          f"must be one of {', '.join(map(repr, PRUNE_RULES))}, got {multistart.prune_rule!r}")
+    if multistart.calibrate_best > MAX_STARTS_PER_K:
+        raise SceneError(path, "multistart.calibrate_best", f"must be in 0..{MAX_STARTS_PER_K} (runs per k to "
+                         f"calibrate; 0: choose by the objective alone), got {multistart.calibrate_best!r}")
+    if not 1 <= multistart.calibrate_seeds <= MAX_CALIBRATE_SEEDS:
+        raise SceneError(path, "multistart.calibrate_seeds", f"must be in 1..{MAX_CALIBRATE_SEEDS} (noise seeds "
+                         f"of the in-run calibration), got {multistart.calibrate_seeds!r}")
     if multistart.prune_first_step > 0 and multistart.prune_rule == "rungs" and multistart.prune_eta < 2:
         raise SceneError(path, "multistart.prune_eta",
                          f"must be at least 2 when prune_first_step > 0 (keep the best 1/eta), "
@@ -640,11 +647,18 @@ def select_poses(scene: Scene, names: list[str]) -> Scene:
 
 
 def with_overrides(scene: Scene, starts_per_k: int | None = None, prune: str | None = None,
-                   keep_repeated_starts: bool = False, check_all_runs: bool = False) -> Scene:
+                   keep_repeated_starts: bool = False, check_all_runs: bool = False,
+                   calibrate_best: int | None = None) -> Scene:
     """``scene`` with ``[multistart]`` values from the command line (``mscap run
-    --starts-per-k N --prune STEP:ETA --keep-repeated-starts --check-all-runs``; ``--prune
-    envelope[:EVERY]`` for the envelope rule), checked like the file's."""
+    --starts-per-k N --prune STEP:ETA --keep-repeated-starts --check-all-runs
+    --calibrate-best N``; ``--prune envelope[:EVERY]`` for the envelope rule), checked like
+    the file's."""
     changes = {}
+    if calibrate_best is not None:
+        if calibrate_best < 0:
+            raise SceneError(scene.path, "multistart.calibrate_best",
+                             f"must be >= 0, got {calibrate_best} (--calibrate-best)")
+        changes["calibrate_best"] = calibrate_best
     if keep_repeated_starts:
         changes["skip_repeated_starts"] = False
     if check_all_runs:

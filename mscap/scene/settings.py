@@ -52,6 +52,9 @@ DESIGN_POSES = ("listed", "family", "both")
 DEFAULT_FAMILY_COUNT = 2
 #: Start indices are 0..999 per k (a start's seed is scene seed · 10⁶ + k · 10³ + index).
 MAX_STARTS_PER_K = 1000
+#: Noise seeds of a multi-start's in-run calibration: each is a refit-free re-score (cheap),
+#: but more than this says nothing the spread of a few does not.
+MAX_CALIBRATE_SEEDS = 100
 
 # Physical ranges. A value outside is a unit mistake or asks for what the model does not
 # describe; the loader refuses it naming the key, the range and the reason given here.
@@ -323,7 +326,13 @@ class MultistartSettings:
     plate (:func:`mscap.service.selection.repeated_starts`: the same run bit for bit).
     ``check_all_runs``: run the finer-mesh check on every run; by default a run already
     beaten by a finished run of its k, which can never be the best of its k that the
-    selection checks, skips it (:func:`mscap.service.multistart.run_start`)."""
+    selection checks, skips it (:func:`mscap.service.multistart.run_start`).
+    In a scene with ``[calibration]``, the end of the multi-start calibrates the best
+    ``calibrate_best`` runs of each k (by the objective), with their initial layouts
+    (``calibrate_initial``) and the scene's layout as a baseline (``calibrate_scene``),
+    under ``calibrate_seeds`` noise seeds, and chooses the design and k on calibrated
+    read-back error (:mod:`mscap.service.calibrated`); ``calibrate_best = 0`` chooses by
+    the objective alone."""
 
     k_min: int = 2
     k_max: int = 6
@@ -337,6 +346,10 @@ class MultistartSettings:
     prune_rule: str = "rungs"
     skip_repeated_starts: bool = True
     check_all_runs: bool = False
+    calibrate_best: int = 3
+    calibrate_initial: bool = True
+    calibrate_scene: bool = True
+    calibrate_seeds: int = 3
 
 
 @dataclass(frozen=True)

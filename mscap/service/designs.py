@@ -83,7 +83,9 @@ def check_scene(store: h5py.File, scene: Scene) -> None:
 
 def read_design(store: h5py.File, rid: str | None = None, which: str = "final") -> StoredDesign:
     """The ``which`` (``"final"`` or ``"initial"``) layout of run ``rid`` of an open
-    results file; ``rid=None`` takes the run the selection chose.
+    results file; ``rid=None`` takes the run the selection chose, and with ``"final"`` the
+    layout it chose (the run's initial one when calibration chose that,
+    :mod:`mscap.service.calibrated`).
 
     Raises
     ------
@@ -93,7 +95,9 @@ def read_design(store: h5py.File, rid: str | None = None, which: str = "final") 
     if which not in ("final", "initial"):
         raise ValueError(f"which must be 'final' or 'initial', got {which!r}")
     if rid is None:
-        rid = store_selection(store).chosen_run
+        selection = store_selection(store)
+        rid = selection.chosen_run
+        which = selection.chosen_which if which == "final" else which
         if not rid:
             raise StoreError(f"{store.filename}: no successful run to choose a design from; "
                              "name one as FILE.h5:RUN")
@@ -218,7 +222,7 @@ def design_layouts(scene: Scene, spec: str, baselines: list[str] | None) -> list
     with read_store(path) as store:
         check_scene(store, scene)
         main = read_design(store, rid, "final")
-        layouts = [(f"{main.label} (optimised)", main.outlines)]
+        layouts = [(f"{main.label} ({'optimised' if main.which == 'final' else 'chosen'})", main.outlines)]
         for b in ["initial"] if baselines is None else baselines:
             if b == "scene":
                 layouts.append(("scene layout", scene.layout.outlines))

@@ -46,20 +46,22 @@ from mscap.fem.simulate import release_freed_memory
 from mscap.mesh.budget import check_scene
 from mscap.service.accuracy import Equilibria, estimate_error, finer
 from mscap.design.readback import ReconstructionBound
-from mscap.service import farm
+from mscap.service import calibrated, farm
 from mscap.service.forecast import Forecast, duration
 from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
 from mscap.service.pruning import Envelope, PruneRule, Rungs, Verdict, history_values, prune_rule, score, \
     score_kind
 from mscap.service.selection import StartConfig, configurations, rank_key, repeated_starts, run_score, select
-from mscap.service.store import failed_record, finished_ids, open_store, read_run, record_from_result, \
-    run_summaries, run_summary, write_run, write_selection
+from mscap.service.store import drop_calibration, failed_record, finished_ids, open_store, read_run, read_store, \
+    read_calibration, record_from_result, run_summaries, run_summary, store_selection, write_run, \
+    write_selection
 from mscap.service.usage import Meter
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["run_start", "run_check", "run_multistart", "stored_table", "Finished", "CheckTask", "beaten_by"]
+__all__ = ["run_start", "run_check", "run_multistart", "stored_table", "Finished", "CheckTask", "beaten_by",
+           "choice_text"]
 
 log = logging.getLogger(__name__)
 
@@ -207,7 +209,7 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
                    select_configs: Callable[[StartConfig], bool] | None = None,
                    max_iterations: int | None = None,
                    progress: Callable[[str], None] | None = None,
-                   heartbeat_s: float = HEARTBEAT_S) -> dict | None:
+                   heartbeat_s: float = HEARTBEAT_S, calibrate: bool = True) -> dict | None:
     """Run every start of ``scene`` not yet in the file ``path``.
 
     Parameters
@@ -226,6 +228,10 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
         Called by the master with one line per finished run, and with a status line of
         the busy workers after ``heartbeat_s`` seconds without one (0: never;
         :mod:`mscap.service.heartbeat`).
+    calibrate
+        In a scene with ``[calibration]``, end by calibrating the best designs and choosing
+        on calibrated read-back error (:mod:`mscap.service.calibrated`; not with
+        ``select_configs``).
 
     Returns the master's summary ``{"runs_done", "runs_failed", "stopped"}`` on rank 0,
     ``None`` on workers.
@@ -244,9 +250,31 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
         return lambda task: run_check(scene, task.record, ask) if isinstance(task, CheckTask) else \
             run_start(scene, task, rank, max_iterations, ask)
 
-    return farm.run(comm, work, master,
-                    "stopped: the finished runs are stored; rerun the same command to complete the rest",
-                    progress or (lambda m: None))
+    summary = farm.run(comm, work, master,
+                       "stopped: the finished runs are stored; rerun the same command to complete the rest",
+                       progress or (lambda m: None))
+    # A job restricted to some starts (a part of an array) leaves the calibration to the
+    # merged file's `mscap run`: its own candidates are not the whole multi-start's.
+    if not (calibrate and calibrated.wanted(scene) and select_configs is None):
+        return summary
+    if comm.bcast(None if summary is None else summary["stopped"], root=0):
+        return summary
+    if calibrated.calibrate_selection(scene, path, comm, progress) and rank == 0:
+        with read_store(path) as store:
+            summary["choice"] = choice_text(store_selection(store))
+    return summary
+
+
+def choice_text(selection) -> str | None:
+    """The run's closing lines on its choice: the chosen k and design, what the choice rests
+    on (:meth:`~mscap.service.selection.Selection.verdict`), and advice when the plateau is
+    not confirmed; ``None`` when nothing was chosen."""
+    if selection.chosen_k is None:
+        return None
+    design = selection.chosen_design
+    which = f"design {design}" if design != selection.chosen_run else f"run {design}"
+    return (f"chosen k = {selection.chosen_k} ({which}); {selection.verdict()}"
+            + (f"\n{selection.advice()}" if selection.advice() else ""))
 
 
 def _master(scene: Scene, path, size, force, retry_failed, select_configs, execute, stop,
@@ -264,7 +292,8 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
     summaries = {}
 
     def selection():
-        return select(list(summaries.values()), ms.plateau_tol, range(ms.k_min, ms.k_max + 1))
+        return select(list(summaries.values()), ms.plateau_tol, range(ms.k_min, ms.k_max + 1),
+                      read_calibration(store))
     try:
         summaries.update((summary.id, summary) for summary in run_summaries(store))
         finished = finished_ids(store, failed=not retry_failed)
@@ -304,6 +333,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             nonlocal done, failed
             # Stored and fsync-ed, then /selection brought up to date, then announced.
             write_run(store, rec)
+            drop_calibration(store)  # a new run may beat the calibrated ones: calibrated again at the end
             if rule.enabled and rec.status == "ok":  # a path that ran to its end
                 rungs.finished(rec.k, *history_values(rule, kind, rec.history))
             summaries[rec.id] = run_summary(rec)
@@ -339,10 +369,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         write_selection(store, final)  # also when nothing was left to do
     finally:
         store.close()  # on an error too, without writing more: the file holds what was stored
-    choice = None if final.chosen_k is None else \
-        f"chosen k = {final.chosen_k} (run {final.chosen_run}); {final.verdict()}" + \
-        (f"\n{final.advice()}" if final.advice() else "")
-    return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested, "choice": choice}
+    return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested, "choice": choice_text(final)}
 
 
 def stored_table(store, rule: PruneRule, kind: str) -> Rungs | Envelope:

@@ -96,10 +96,16 @@ def summary_json(selection, errors: dict | None = None, readings: dict | None = 
                        "best_error_estimate": _finite_or_none(_error(errors, s.best_run)),
                        "best_bound_mm": s.best_bound_mm,
                        "best_reading_plates": None if s.best_run not in (readings or {})
-                       else readings[s.best_run].plates}
+                       else readings[s.best_run].plates,
+                       "best_design": s.best_design, "best_calibrated_error_mm": s.best_error_mm}
                       for s in selection.per_k],
-            "by_bound": selection.by_bound,
+            "by_bound": selection.by_bound, "by_calibration": selection.by_calibration,
+            "calibrated": [{"design": d.label, "k": d.k, "error_mm": _finite_or_none(d.error_mm),
+                            "spread_mm": _finite_or_none(d.spread_mm), "bound_mm": _finite_or_none(d.bound_mm)}
+                           for d in selection.calibrated],
+            "objective_chosen_k": selection.objective_k,
             "chosen_k": selection.chosen_k, "chosen_run": selection.chosen_run,
+            "chosen_design": selection.chosen_design,
             "plateau_tol": selection.plateau_tol, "plateau_reached": selection.plateau_reached,
             "runs_total": selection.runs_total, "finer_chosen_k": selection.finer_chosen_k,
             "resolved": selection.resolved, "metric_error": _finite_or_none(selection.metric_error),
@@ -285,28 +291,37 @@ def table(selection, title: str = "", errors: dict | None = None, readings: dict
     lines = [title] if title else []
     readings = readings or {}
     bound = selection.by_bound  # runs designed for read-back: best = smallest bound
+    calibrated = selection.by_calibration  # chosen on calibrated error: its column and design first
     pruned = any(s.runs_pruned for s in selection.per_k)  # a column only when a rule pruned
     lines.append(f"{'':1} {'k':>3} {'ok':>4} " + (f"{'pruned':>6} " if pruned else "") + f"{'failed':>6} "
+                 + (f"{'calibrated (mm)':>15} {'best design':<28} " if calibrated else "")
                  + (f"{'best bound (mm)':>16} {'min L1 (pF)':>12}" if bound else f"{'best min L1 (pF)':>17}")
-                 + f" {'best run':<20} {'error':>8} {'time (s)':>9}" + (f" {'reads':>5}" if readings else ""))
+                 + f" {'best run' + (' by bound' if calibrated else ''):<20} {'error':>8} {'time (s)':>9}"
+                 + (f" {'reads':>5}" if readings else ""))
     for s in selection.per_k:
         mark = "*" if s.k == selection.chosen_k else " "
         metric = "-" if s.best_metric is None else f"{s.best_metric:.6g}"
         score = (f"{'-' if s.best_bound_mm is None else format(s.best_bound_mm, '.4g'):>16} {metric:>12}"
                  if bound else f"{metric:>17}")
+        by_error = (f"{'-' if s.best_error_mm is None else format(s.best_error_mm, '.4g'):>15} "
+                    f"{s.best_design or '-':<28} " if calibrated else "")
         lines.append(f"{mark} {s.k:>3} {s.runs_ok:>4} " + (f"{s.runs_pruned:>6} " if pruned else "")
-                     + f"{s.runs_failed:>6} {score} "
+                     + f"{s.runs_failed:>6} {by_error}{score} "
                      f"{s.best_run or '-':<20} {_percent(_error(errors, s.best_run)):>8} {s.wall_s:>9.1f}"
                      + (f" {_reads(readings.get(s.best_run)):>5}" if readings else ""))
     if selection.chosen_k is None:
         lines.append("no successful run: no k chosen")
     else:
         note = "" if selection.plateau_reached else " (largest k with a successful run: plateau not confirmed)"
-        lines.append(f"* chosen k = {selection.chosen_k}, run {selection.chosen_run}, plateau_tol "
+        what = f"design {selection.chosen_design}" if calibrated else f"run {selection.chosen_run}"
+        lines.append(f"* chosen k = {selection.chosen_k}, {what}, plateau_tol "
                      f"{selection.plateau_tol:g}{note}; {selection.runs_total} runs")
         lines.append(f"  {selection.verdict()}")
         if selection.advice():
             lines.append(f"  {selection.advice()}")
+        if calibrated:
+            lines.append("  (calibrated: the sequence's mean point error of the `mscap calibrate` protocol, mean "
+                         "over the noise seeds; docs/calibration.md, \"Choosing on calibrated error\")")
         if bound:
             lines.append("  (read-back bound: soft max over the design family of the Cramér–Rao bound on the "
                          "RMS per-vertex error, mm; docs/optimize.md)")

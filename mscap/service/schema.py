@@ -111,8 +111,36 @@ SELECTION_ITEMS = {
     "rule": ("attribute str", "the rule in words"),
     "finer_chosen_k": ("attribute int", "the k the rule picks from the best runs' finer-mesh metrics (-1: a best "
                        "run unchecked, or chosen by read-back bound)"),
-    "resolution": ("attribute str", "whether the finer mesh picks the same k, with the weakest decision's margin "
-                   "on both meshes and its error bound (`Selection.verdict`)"),
+    "resolution": ("attribute str", "what the choice rests on: with calibrated designs the calibrated errors of "
+                   "the chosen design, the next best, the objective's own choice and the scene's layout; then "
+                   "whether the finer mesh picks the objective's k, with the weakest decision's margin on both "
+                   "meshes and its error bound (`Selection.verdict`)"),
+    "best_design": ("dataset str (n_k,)", 'best calibrated design per k: a run id (its final layout) or '
+                    '"RUN:initial" ("" if not calibrated)'),
+    "best_error_mm": ("dataset float64 (n_k,)", "its calibrated read-back error (mm; NaN if not calibrated)"),
+    "chosen_design": ("attribute str", 'the chosen layout: chosen_run (its final layout) or "RUN:initial"'),
+    "objective_chosen_k": ("attribute int", "the k the objective alone chooses (differs from chosen_k only when "
+                           "the choice was made on calibrated error)"),
+}
+
+#: Items of ``/calibration``: the designs the multi-start calibrated (:mod:`mscap.service.calibrated`),
+#: one row each. Written once every design is scored; deleted when a new run is stored (the
+#: next session's end calibrates again; the simulations stay in the cache).
+CALIBRATION_ITEMS = {
+    "label": ("dataset str (n,)", 'a run id (its final layout), "RUN:initial" or "scene" (the scene\'s own '
+                                  'layout: a baseline, never chosen)'),
+    "k": ("dataset int64 (n,)", "capacitors"),
+    "error_mm": ("dataset float64 (n,)", "calibrated read-back error: the sequence's mean point error, averaged "
+                                         "over the noise runs, then over the noise seeds (mm or parameter units; "
+                                         "NaN if its family failed to simulate)"),
+    "spread_mm": ("dataset float64 (n,)", "standard deviation of that error over the noise seeds"),
+    "bound_mm": ("dataset float64 (n,)", "the layout's read-back bound (NaN: none, or the scene layout)"),
+    "noise_seeds": ("attribute int64 (n_seeds,)", "the noise seeds (the scene's calibration.noise.seed onwards)"),
+    "noise_runs": ("attribute int", "noisy runs per seed"),
+    "cache": ("attribute str", "the simulation cache (beside the results file; `mscap calibrate` reuses it)"),
+    "wall_s": ("attribute float", "wall time of the session's calibration (s): simulation, fits and scores"),
+    "simulation_s": ("attribute float", "summed per-pose simulation wall time of the calibrated families (s, "
+                                        "whichever session simulated them)"),
 }
 
 
@@ -126,7 +154,8 @@ def schema_markdown() -> str:
                       table("Run attributes (`/runs/<id>`)", RUN_ATTRS),
                       table("Run datasets (`/runs/<id>/...`)", RUN_DATASETS),
                       table("History columns (`/runs/<id>/history/<column>`)", history),
-                      table("Selection (`/selection`)", SELECTION_ITEMS)])
+                      table("Selection (`/selection`)", SELECTION_ITEMS),
+                      table("Calibrated designs (`/calibration`)", CALIBRATION_ITEMS)])
 
 
 # ---------------------------------------------------------------- records

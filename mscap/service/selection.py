@@ -9,7 +9,7 @@ The rule is documented in ``docs/hdf5.md`` ("Selection").
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Iterable, Sequence
 
 from mscap.scene.loader import check_multistart
@@ -18,7 +18,8 @@ if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
 __all__ = ["ERROR_BOUND", "StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS", "run_id", "configurations",
-           "repeated_starts", "choose_k", "run_score", "rank_key", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND"]
+           "repeated_starts", "choose_k", "run_score", "rank_key", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND",
+           "SELECTION_RULE_CALIBRATED", "CalibratedDesign", "by_calibration"]
 
 #: The ``init`` kinds the multi-start schedules, in order (:func:`configurations`: Lloyd
 #: starts first, then random ones); a subset of :data:`mscap.geometry.initial.LAYOUT_INITS`.
@@ -30,6 +31,10 @@ SELECTION_RULE = ("chosen k = smallest k with a successful run such that no larg
 #: The rule when the runs carry a read-back bound (design poses from the calibration family).
 SELECTION_RULE_BOUND = ("best run per k = smallest read-back bound b; chosen k = smallest k with a successful "
                         "run such that no larger k has a best bound below b(k) / (1 + plateau_tol)")
+#: The rule when the best designs were calibrated in the run (:mod:`mscap.service.calibrated`).
+SELECTION_RULE_CALIBRATED = ("best design per k = smallest calibrated read-back error e (mean over the noise "
+                             "seeds) among the calibrated runs' final and initial layouts; chosen k = smallest "
+                             "k such that no larger k has a best error below e(k) / (1 + plateau_tol)")
 
 
 def run_id(k: int, seed: int, init: str) -> str:
@@ -128,6 +133,32 @@ class RunSummary:
 
 
 @dataclass(frozen=True)
+class CalibratedDesign:
+    """One design calibrated inside the multi-start (:mod:`mscap.service.calibrated`):
+    ``label`` is a run id (its final layout), ``RUN:initial`` (that run's initial layout)
+    or ``"scene"`` (the scene's own layout, a baseline that is reported, never chosen).
+    ``error_mm`` is the calibrated read-back error, the sequence's mean point error
+    averaged over the noise runs and then over the noise seeds; ``spread_mm`` its standard
+    deviation over the seeds; ``bound_mm`` the objective's read-back bound of the same
+    layout (NaN: none)."""
+
+    label: str
+    k: int
+    error_mm: float
+    spread_mm: float = math.nan
+    bound_mm: float = math.nan
+
+    @property
+    def which(self) -> str:
+        """``"final"``, ``"initial"`` or ``"scene"``."""
+        return "scene" if self.label == "scene" else "initial" if self.label.endswith(":initial") else "final"
+
+    @property
+    def run_id(self) -> str | None:
+        return None if self.label == "scene" else self.label.partition(":")[0]
+
+
+@dataclass(frozen=True)
 class KSummary:
     """Runs of one k: counts (``runs_ok`` includes the ``runs_pruned``), the best successful
     run (``None`` if none) and the summed wall time (s)."""
@@ -140,12 +171,22 @@ class KSummary:
     wall_s: float
     best_bound_mm: float | None = None
     runs_pruned: int = 0
+    #: The best calibrated design of the k (a run id or ``RUN:initial``) and its error
+    #: (``None``: the runs were not calibrated).
+    best_design: str | None = None
+    best_error_mm: float | None = None
 
 
 @dataclass(frozen=True)
 class Selection:
     """Per-k summaries (ascending k), the chosen k and its best run (``None`` when no run
-    succeeded), and whether a larger k was available to confirm the plateau."""
+    succeeded), and whether a larger k was available to confirm the plateau.
+
+    With ``calibrated`` designs (the multi-start calibrated its best runs,
+    :mod:`mscap.service.calibrated`) the choice is made on their calibrated read-back
+    error: ``chosen_design`` is then the chosen run's final layout or its initial one
+    (``RUN:initial``), and ``objective_k``/``objective_design`` keep what the objective alone
+    chooses; the finer-mesh fields speak of the objective's choice."""
 
     per_k: tuple[KSummary, ...]
     chosen_k: int | None
@@ -168,6 +209,64 @@ class Selection:
     margin: float = math.nan
     margin_error: float = math.nan
     finer_margin: float = math.nan
+    calibrated: tuple[CalibratedDesign, ...] = ()
+    #: With ``calibrated``: the design chosen (``None``: the chosen run's final layout).
+    design: str | None = None
+    #: The k and run the objective alone chooses (``chosen_k``/``chosen_run`` unless the
+    #: choice was made on calibrated error); the finer-mesh check is of this choice.
+    objective_k: int | None = None
+    objective_design: str | None = None
+
+    @property
+    def by_calibration(self) -> bool:
+        """Was the choice made on calibrated read-back error?"""
+        return bool(self.calibrated)
+
+    @property
+    def chosen_design(self) -> str | None:
+        """The chosen layout: a run id (its final layout) or ``RUN:initial``."""
+        return self.design or self.chosen_run
+
+    @property
+    def chosen_which(self) -> str:
+        """``"final"`` or ``"initial"``: which layout of ``chosen_run`` was chosen."""
+        return "initial" if (self.chosen_design or "").endswith(":initial") else "final"
+
+    def calibrated_of(self, label: str | None) -> CalibratedDesign | None:
+        return next((d for d in self.calibrated if d.label == label), None)
+
+    def calibration_text(self) -> str:
+        """With calibrated designs, what the choice rests on, e.g. "chosen on calibrated
+        read-back error (13 designs): k2_s1002001_lloyd 0.234 ± 0.0011 mm; next best
+        k2_s1002000_lloyd 0.249 mm (+6.1 %); the objective alone would have chosen
+        k3_s1003000_lloyd (k = 3), which calibrates at 0.321 mm (+37.1 %); the scene's own
+        layout 0.425 mm" (pneumatic_quick with its family widened, docs/results.md). A lead
+        over the next best of less than two standard deviations of the difference over the
+        noise seeds is called a tie. Empty without calibrated designs."""
+        if not self.by_calibration or self.chosen_design is None:
+            return ""
+        chosen = self.calibrated_of(self.chosen_design)
+        parts = [f"chosen on calibrated read-back error ({len(self.calibrated)} designs): "
+                 f"{chosen.label} {chosen.error_mm:.3g}"
+                 + (f" ± {chosen.spread_mm:.2g}" if math.isfinite(chosen.spread_mm) else "") + " mm"]
+        rivals = sorted((d for d in self.calibrated if d.which != "scene" and d.label != chosen.label
+                         and math.isfinite(d.error_mm)), key=lambda d: (d.error_mm, d.label))
+        if rivals:
+            rival = rivals[0]
+            tie = math.hypot(rival.spread_mm, chosen.spread_mm) * 2 > rival.error_mm - chosen.error_mm
+            parts.append(f"next best {rival.label} {rival.error_mm:.3g} mm "
+                         f"({_signed(rival.error_mm / chosen.error_mm - 1)}"
+                         + (", within the noise seeds' spread: a tie" if tie else "") + ")")
+        other = self.calibrated_of(self.objective_design)
+        if self.objective_design != chosen.label:
+            parts.append(f"the objective alone would have chosen {self.objective_design} (k = {self.objective_k})"
+                         + (f", which calibrates at {other.error_mm:.3g} mm "
+                            f"({_signed(other.error_mm / chosen.error_mm - 1)})" if other else ""))
+        scene = self.calibrated_of("scene")
+        if scene is not None and math.isfinite(scene.error_mm):
+            parts.append(f"the scene's own layout {scene.error_mm:.3g} mm"
+                         + (" (better than every design of the run)" if scene.error_mm < chosen.error_mm else ""))
+        return "; ".join(parts)
 
     def advice(self) -> str:
         """At a chosen k with no larger k to confirm its plateau (the largest k that
@@ -175,9 +274,13 @@ class Selection:
         k_max to try. Empty when the plateau is confirmed or nothing was chosen."""
         if self.chosen_k is None or self.plateau_reached:
             return ""
-        what = "precision 1 / (read-back bound)" if self.by_bound else "min L1"
-        best = {s.k: (1.0 / s.best_bound_mm if self.by_bound and s.best_bound_mm else s.best_metric)
-                for s in self.per_k if (s.best_bound_mm if self.by_bound else s.best_metric)}
+        if self.by_calibration:
+            what = "precision 1 / (calibrated error)"
+            best = {s.k: 1.0 / s.best_error_mm for s in self.per_k if s.best_error_mm}
+        else:
+            what = "precision 1 / (read-back bound)" if self.by_bound else "min L1"
+            best = {s.k: (1.0 / s.best_bound_mm if self.by_bound and s.best_bound_mm else s.best_metric)
+                    for s in self.per_k if (s.best_bound_mm if self.by_bound else s.best_metric)}
         below = [k for k in best if k < self.chosen_k]
         grew = "" if not below else (f"; its best {what} grew {_pct(best[self.chosen_k] / best[max(below)] - 1)} "
                                      f"from k = {max(below)}")
@@ -187,10 +290,10 @@ class Selection:
 
     @property
     def resolved(self) -> bool | None:
-        """Does the finer mesh pick the same k? ``None`` if it cannot tell."""
-        if self.chosen_k is None or self.finer_chosen_k is None:
+        """Does the finer mesh pick the same k as the objective? ``None`` if it cannot tell."""
+        if self.objective_k is None or self.finer_chosen_k is None:
             return None
-        return self.finer_chosen_k == self.chosen_k
+        return self.finer_chosen_k == self.objective_k
 
     def verdict(self) -> str:
         """One line on whether the mesh resolves the choice, e.g. "not resolved: on the
@@ -206,6 +309,13 @@ class Selection:
         k = 3 runs read 15.3 % and 10.0 % above their finer-mesh metrics, while the decision's
         margin only moves from 23.4 % to 17.7 %)."""
         if self.chosen_k is None:
+            return "no k chosen"
+        if self.by_calibration:
+            return f"{self.calibration_text()}. The objective's own choice: {self._resolution()}"
+        return self._resolution()
+
+    def _resolution(self) -> str:
+        if self.objective_k is None:
             return "no k chosen"
         if self.resolved is None:
             return ("resolution unknown: a best run has no finer-mesh check"
@@ -229,6 +339,10 @@ ERROR_BOUND = 2.0
 
 def _pct(x: float) -> str:
     return f"{100 * x:.1f} %" if math.isfinite(x) else "-"
+
+
+def _signed(x: float) -> str:
+    return f"{100 * x:+.1f} %" if math.isfinite(x) else "-"
 
 
 def decisions(ks: Sequence[int], metrics: Sequence[float], plateau_tol: float) -> list[tuple[int, int, float]]:
@@ -296,7 +410,8 @@ def rank_key(run, by_bound: bool) -> tuple[float, str]:
     return -run_score(run, by_bound), run.id
 
 
-def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[int] = ()) -> Selection:
+def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[int] = (),
+           calibrated: Iterable[CalibratedDesign] = ()) -> Selection:
     """Best run per k (largest metric among the finished runs, pruned ones left out; ties go
     to the smallest id) and the chosen k.
 
@@ -305,6 +420,11 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
     smallest bound and the plateau rule runs on its precision 1/bound: the smallest k
     that no larger k beats by more than ``plateau_tol``. ``k_values`` adds rows for k
     without any run (e.g. the scene's ``k_min..k_max``).
+
+    With ``calibrated`` designs (:mod:`mscap.service.calibrated`) the best design of each k
+    is its calibrated design of least error (final or initial layout of a stored run; the
+    scene's layout is a baseline, never chosen) and the same plateau rule runs on the
+    precision 1/error (:func:`by_calibration`).
     """
     runs = list(runs)
     ks = sorted(set(k_values) | {r.k for r in runs})
@@ -348,7 +468,8 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
         compared.append((k, other, held, finer_held, ERROR_BOUND * abs(held - finer_held)))
     # The weakest decision: the least margin left over its error (or the least margin, unchecked).
     weakest = min(compared, key=lambda d: d[2] - d[4] if checked else d[2], default=None)
-    return Selection(per_k=tuple(per_k), chosen_k=chosen, chosen_run=chosen_run, plateau_tol=plateau_tol,
+    base = Selection(per_k=tuple(per_k), chosen_k=chosen, chosen_run=chosen_run, plateau_tol=plateau_tol,
+                     objective_k=chosen, objective_design=chosen_run,
                      plateau_reached=chosen is not None and chosen < max(valid), runs_total=len(runs),
                      by_bound=by_bound, finer_chosen_k=finer_chosen,
                      metric_error=max(error_of.values()) if checked else math.nan,
@@ -356,3 +477,27 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
                      margin=math.nan if weakest is None else weakest[2],
                      finer_margin=math.nan if weakest is None else weakest[3],
                      margin_error=math.nan if weakest is None else weakest[4])
+    return by_calibration(base, calibrated, runs)
+
+
+def by_calibration(base: Selection, calibrated: Iterable[CalibratedDesign], runs: Iterable[RunSummary]) -> Selection:
+    """``base`` (the objective's selection) chosen again on calibrated read-back error:
+    per k the calibrated design of least error among the layouts of the successful,
+    unpruned ``runs`` (ties to the smaller label), and k by :func:`choose_k` on the
+    precision 1/error; the selection keeps those designs and the scene layout's baseline.
+    ``base`` itself when no such design has a finite error."""
+    calibrated = tuple(calibrated)
+    good = {r.id for r in runs if r.ok and not r.pruned}
+    eligible = [d for d in calibrated if d.run_id in good and math.isfinite(d.error_mm) and d.error_mm > 0]
+    if not eligible:
+        return base
+    best: dict[int, CalibratedDesign] = {}
+    for d in sorted(eligible, key=lambda d: (d.error_mm, d.label)):
+        best.setdefault(d.k, d)
+    ks = sorted(best)
+    chosen = choose_k(ks, [1.0 / best[k].error_mm for k in ks], base.plateau_tol)
+    per_k = tuple(replace(s, best_design=best[s.k].label, best_error_mm=best[s.k].error_mm) if s.k in best else s
+                  for s in base.per_k)
+    baselines = tuple(d for d in calibrated if d.which == "scene")
+    return replace(base, per_k=per_k, chosen_k=chosen, chosen_run=best[chosen].run_id, design=best[chosen].label,
+                   plateau_reached=chosen < max(ks), calibrated=tuple(eligible) + baselines)

@@ -29,10 +29,11 @@ from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
 from mscap.service.checks import check_store, damaged_runs, one_line, run_problem
 from mscap.service.outfile import WriteLock, check_output_path, reserve, room_text
-from mscap.service.schema import (FORMAT, HISTORY_COLUMNS, ROOT_ATTRS, RUN_ATTRS, RUN_DATASETS, SCHEMA_VERSION,
-                                  SELECTION_ITEMS, TEMP_PREFIX, RunRecord, failed_record, record_bytes,
+from mscap.service.schema import (CALIBRATION_ITEMS, FORMAT, HISTORY_COLUMNS, ROOT_ATTRS, RUN_ATTRS, RUN_DATASETS,
+                                  SCHEMA_VERSION, SELECTION_ITEMS, TEMP_PREFIX, RunRecord, failed_record, record_bytes,
                                   record_from_result, run_summary, schema_markdown)
-from mscap.service.selection import SELECTION_RULE_BOUND, RunSummary, Selection, select, SELECTION_RULE
+from mscap.service.selection import SELECTION_RULE_BOUND, SELECTION_RULE_CALIBRATED, CalibratedDesign, RunSummary, \
+    Selection, select, SELECTION_RULE
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -41,7 +42,8 @@ __all__ = ["StoreError", "StoreFullError", "RunRecord", "ResultsFile", "check_st
            "run_summary", "record_bytes", "WriteGuard", "FORMAT", "SCHEMA_VERSION", "ROOT_ATTRS", "RUN_ATTRS",
            "RUN_DATASETS", "HISTORY_COLUMNS", "SELECTION_ITEMS", "TEMP_PREFIX", "open_store", "create_store",
            "read_store", "finished_ids", "write_run", "read_run", "run_summaries", "write_selection", "store_selection",
-           "record_from_result", "failed_record", "scene_settings", "schema_markdown"]
+           "record_from_result", "failed_record", "scene_settings", "schema_markdown", "CALIBRATION_ITEMS",
+           "write_calibration", "read_calibration", "drop_calibration"]
 
 log = logging.getLogger(__name__)
 
@@ -168,14 +170,16 @@ def _check_format(f: h5py.File, path) -> None:
         raise StoreError(f"{path}: not an mscap results file (no format = {FORMAT!r} attribute)")
 
 
-def open_store(path, scene: Scene, mpi_size: int = 1, force: bool = False) -> ResultsFile:
+def open_store(path, scene: Scene, mpi_size: int = 1, force: bool = False, new_session: bool = True) -> ResultsFile:
     """Create the results file of ``scene``, or reopen it to resume.
 
     The file is locked before anything is decided: a file another process writes is
     refused (``force`` included) and left untouched. A reopened file must hold the same
     scene (same ``Scene.sha256``); its half-written temporary run groups (from a killed
     job) and its damaged runs (:func:`damaged_runs`) are deleted, so they run again.
-    ``force`` starts over: the file is recreated empty. ``path`` follows the rule of
+    ``force`` starts over: the file is recreated empty. ``new_session=False`` reopens the
+    file within the session that opened it (the in-run calibration, after the starts): the
+    session's attributes stay. ``path`` follows the rule of
     :func:`~mscap.service.outfile.check_output_path` (no link; directories created).
     Returns the open, writable :class:`ResultsFile`; close it (or use it as a context
     manager) when done.
@@ -218,12 +222,14 @@ def open_store(path, scene: Scene, mpi_size: int = 1, force: bool = False) -> Re
                 except (KeyError, OSError, RuntimeError):  # its index entry itself is damaged
                     f.close()
                     _rebuild(path, set(drop))
-                    return open_store(path, scene, mpi_size, force)
-            if TEMP_PREFIX + "selection" in f:
-                del f[TEMP_PREFIX + "selection"]
-            f.attrs["mpi_size"] = int(mpi_size)
-            f.attrs["last_open_time"] = _now()
-            f.attrs["sessions"] = int(f.attrs.get("sessions", 1)) + 1
+                    return open_store(path, scene, mpi_size, force, new_session)
+            for half in (TEMP_PREFIX + "selection", TEMP_PREFIX + "calibration"):
+                if half in f:
+                    del f[half]
+            if new_session:
+                f.attrs["mpi_size"] = int(mpi_size)
+                f.attrs["last_open_time"] = _now()
+                f.attrs["sessions"] = int(f.attrs.get("sessions", 1)) + 1
             f.commit()
     except BaseException:
         f.close()
@@ -412,9 +418,57 @@ def scene_settings(store: h5py.File) -> MultistartSettings:
 
 def store_selection(store: h5py.File) -> Selection:
     """Selection over the store's finished runs, with the stored scene's k range and
-    ``plateau_tol`` (what ``write_selection`` should be given after each run)."""
+    ``plateau_tol`` (what ``write_selection`` should be given after each run), made on
+    the calibrated designs of ``/calibration`` when the file has them."""
     ms = scene_settings(store)
-    return select(run_summaries(store), ms.plateau_tol, range(ms.k_min, ms.k_max + 1))
+    return select(run_summaries(store), ms.plateau_tol, range(ms.k_min, ms.k_max + 1), read_calibration(store))
+
+
+def write_calibration(store: ResultsFile, designs, attrs: dict) -> None:
+    """Replace ``/calibration`` with the calibrated ``designs``
+    (:class:`~mscap.service.selection.CalibratedDesign`) and ``attrs`` (the rest of
+    :data:`CALIBRATION_ITEMS`), flushed and ``fsync``-ed; built under a temporary name."""
+    designs = list(designs)
+    store.make_room(SELECTION_BYTES + 256 * len(designs))
+    with WriteGuard(store, "/calibration"):
+        temp = TEMP_PREFIX + "calibration"
+        if temp in store:
+            del store[temp]
+        g = store.create_group(temp)
+        g.create_dataset("label", data=np.array([d.label for d in designs], dtype=object), dtype=_STR)
+        g.create_dataset("k", data=np.array([d.k for d in designs], dtype=np.int64))
+        for name in ("error_mm", "spread_mm", "bound_mm"):
+            g.create_dataset(name, data=np.array([getattr(d, name) for d in designs], dtype=float))
+        g.attrs.update(attrs)
+        assert set(g) | set(g.attrs) == set(CALIBRATION_ITEMS)
+        if "calibration" in store:
+            del store["calibration"]
+        store.move(temp, "calibration")
+        store.commit()
+
+
+def read_calibration(store: h5py.File) -> tuple[CalibratedDesign, ...]:
+    """The calibrated designs of ``/calibration`` (empty without one, or with a damaged
+    one: the selection then stays the objective's, and says so)."""
+    if "calibration" not in store:
+        return ()
+    try:
+        g = store["calibration"]
+        labels = g["label"].asstr()[()]
+        columns = [g[name][()] for name in ("k", "error_mm", "spread_mm", "bound_mm")]
+        return tuple(CalibratedDesign(str(label), int(k), float(e), float(s), float(b))
+                     for label, k, e, s, b in zip(labels, *columns, strict=True))
+    except (KeyError, OSError, RuntimeError, ValueError) as exc:
+        log.warning("%s: /calibration is unreadable (%s); choosing by the objective", store.filename, one_line(exc))
+        return ()
+
+
+def drop_calibration(store: ResultsFile) -> None:
+    """Delete ``/calibration`` (a new run makes it stale: the session's end calibrates again)."""
+    if "calibration" in store:
+        with WriteGuard(store, "/calibration"):
+            del store["calibration"]
+            store.commit()
 
 
 #: Room reserved for ``/selection`` beyond 128 bytes per k (measured: at most 4 KiB with 3 k values).
@@ -445,10 +499,16 @@ def _write_selection(store: ResultsFile, selection: Selection) -> None:
                                                      for s in per_k], dtype=float))
     g.create_dataset("best_run", data=np.array([s.best_run or "" for s in per_k], dtype=object), dtype=_STR)
     g.create_dataset("wall_s", data=np.array([s.wall_s for s in per_k], dtype=float))
+    g.create_dataset("best_design", data=np.array([s.best_design or "" for s in per_k], dtype=object), dtype=_STR)
+    g.create_dataset("best_error_mm", data=np.array([math.nan if s.best_error_mm is None else s.best_error_mm
+                                                     for s in per_k], dtype=float))
     g.attrs.update({"chosen_k": -1 if selection.chosen_k is None else int(selection.chosen_k),
+                    "chosen_design": selection.chosen_design or "",
+                    "objective_chosen_k": -1 if selection.objective_k is None else int(selection.objective_k),
                     "chosen_run": selection.chosen_run or "", "plateau_tol": float(selection.plateau_tol),
                     "plateau_reached": int(selection.plateau_reached), "runs_total": int(selection.runs_total),
-                    "rule": SELECTION_RULE_BOUND if selection.by_bound else SELECTION_RULE,
+                    "rule": SELECTION_RULE_CALIBRATED if selection.by_calibration else
+                    SELECTION_RULE_BOUND if selection.by_bound else SELECTION_RULE,
                     "finer_chosen_k": -1 if selection.finer_chosen_k is None else int(selection.finer_chosen_k),
                     "resolution": selection.verdict()})
     assert set(g) | set(g.attrs) == set(SELECTION_ITEMS)

@@ -38,6 +38,15 @@ class Panel:
     chosen: bool
     bound_mm: float | None = None  # the read-back bound, when the selection uses it
     silent: tuple[int, ...] = ()  # plates of the run's design that read nothing (report.silent_plates)
+    #: The calibrated error of the k's best calibrated design and its label (``RUN`` or
+    #: ``RUN:initial``), when the selection was made on calibrated error.
+    error_mm: float | None = None
+    design: str | None = None
+
+    @property
+    def initial(self) -> bool:
+        """Is the panel's layout its run's initial one (calibration preferred it)?"""
+        return (self.design or "").endswith(":initial")
 
     @property
     def empty(self) -> bool:
@@ -48,6 +57,8 @@ class Panel:
         if self.empty:
             return f"k = {self.k}, no successful run"
         score = f"bound {self.bound_mm:.3g} mm" if self.bound_mm is not None else f"min L1 = {self.metric:.4g} pF"
+        if self.error_mm is not None:
+            score = f"calibrated {self.error_mm:.3g} mm" + (" (initial layout)" if self.initial else "")
         reads = f"\n{self.k - len(self.silent)} of {self.k} plates read the poses" if self.silent else ""
         return f"k = {self.k}, {score}{reads}" + (" (chosen)" if self.chosen else "")
 
@@ -63,10 +74,13 @@ class Panel:
 
 def panels(selection) -> list[Panel]:
     """One ``Panel`` per k of a ``mscap.service.selection.Selection`` (ascending k); exactly the
-    chosen k (if any) is flagged."""
-    return [Panel(k=s.k, run_id=s.best_run, metric=s.best_metric, runs_ok=s.runs_ok,
-                  runs_failed=s.runs_failed, chosen=s.k == selection.chosen_k and s.best_run is not None,
-                  bound_mm=s.best_bound_mm)
+    chosen k (if any) is flagged. Chosen on calibrated error, a panel shows the k's best
+    calibrated design."""
+    def run_of(s):
+        return s.best_design.partition(":")[0] if s.best_design else s.best_run
+    return [Panel(k=s.k, run_id=run_of(s), metric=s.best_metric, runs_ok=s.runs_ok,
+                  runs_failed=s.runs_failed, chosen=s.k == selection.chosen_k and run_of(s) is not None,
+                  bound_mm=s.best_bound_mm, error_mm=s.best_error_mm, design=s.best_design)
             for s in selection.per_k]
 
 
@@ -115,14 +129,17 @@ def _frame(ax, colour, width) -> None:
 
 def _metric_panel(ax, selection, items: list[Panel]) -> None:
     ok = [p for p in items if not p.empty]
-    bound = selection.by_bound  # lower is better: the band reaches down to b/(1 + tol)
-    value = (lambda p: p.bound_mm) if bound else (lambda p: p.metric)
+    calibrated = selection.by_calibration
+    bound = selection.by_bound or calibrated  # lower is better: the band reaches down to b/(1 + tol)
+    value = (lambda p: p.error_mm) if calibrated else (lambda p: p.bound_mm) if bound else (lambda p: p.metric)
+    ok = [p for p in ok if value(p) is not None]
     if ok:
         ax.plot([p.k for p in ok], [value(p) for p in ok], "o-", color="0.2", ms=4, lw=1)
     chosen = next((p for p in items if p.chosen), None)
     if chosen is not None:
         m, tol = value(chosen), selection.plateau_tol
-        low, high, label = ((m / (1 + tol), m, f"b(k={chosen.k})/(1 + {tol:g}) … b") if bound
+        letter = "e" if calibrated else "b"
+        low, high, label = ((m / (1 + tol), m, f"{letter}(k={chosen.k})/(1 + {tol:g}) … {letter}") if bound
                             else (m, (1 + tol) * m, f"m(k={chosen.k}) … (1 + {tol:g})·m"))
         ax.axhspan(low, high, color=CHOSEN_COLOUR, alpha=0.15, lw=0, label=label)
         ax.axhline(m, color=CHOSEN_COLOUR, lw=0.8, ls="--")
@@ -136,8 +153,9 @@ def _metric_panel(ax, selection, items: list[Panel]) -> None:
     if items:
         ax.set_xlim(items[0].k - 0.5, items[-1].k + 0.5)
     ax.set_xlabel("k")
-    ax.set_ylabel("best read-back bound (mm)" if bound else "best min L1 (pF)")
-    ax.set_title(("best bound per k" if bound else "best metric per k")
+    ax.set_ylabel("best calibrated error (mm)" if calibrated else "best read-back bound (mm)" if bound
+                  else "best min L1 (pF)")
+    ax.set_title(("best calibrated error per k" if calibrated else "best bound per k" if bound else "best metric per k")
                  + ("" if chosen is not None else " (no k chosen)"), fontsize=9)
     ax.grid(alpha=0.3)
 
@@ -165,10 +183,13 @@ def plot_results(results, output, dpi: int = 120) -> list[Panel]:
             raise StoreError(f"{results}: no finished runs stored yet; nothing to plot")
         selection = store_selection(store)
         runs = {p.k: read_run(store, p.run_id) for p in panels(selection) if not p.empty}
-        items = [replace(p, silent=reading_plates(runs[p.k].final_capacitance_pF).silent) if p.k in runs else p
-                 for p in panels(selection)]
+        items = panels(selection)
+        items = [replace(p, silent=reading_plates(runs[p.k].initial_capacitance_pF if p.initial else
+                                                  runs[p.k].final_capacitance_pF).silent) if p.k in runs else p
+                 for p in items]
         sheet = _sheet_outline(store)
-        outlines = {k: run.final_outlines for k, run in runs.items()}
+        initial = {p.k for p in items if p.initial}
+        outlines = {k: run.initial_outlines if k in initial else run.final_outlines for k, run in runs.items()}
         scene_name = str(store.attrs.get("scene_name", "?"))
 
     rows, cols = grid_shape(len(items))
@@ -208,7 +229,8 @@ def plot_results(results, output, dpi: int = 120) -> list[Panel]:
     else:
         headline = (f"chosen k = {selection.chosen_k} (plateau_tol {selection.plateau_tol:g}"
                     + ("" if selection.plateau_reached else ", plateau not confirmed") + ")")
-    fig.suptitle(f"{scene_name}: best layout per k; {headline}", fontsize=10)
+    what = "best calibrated design" if selection.by_calibration else "best layout"
+    fig.suptitle(f"{scene_name}: {what} per k; {headline}", fontsize=10)
     fig.tight_layout()
     Path(output).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(output, dpi=dpi)

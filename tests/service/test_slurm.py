@@ -437,6 +437,29 @@ def test_submit_seed_split(sandbox):
     assert argv == ["merge", *map(str, expected), "-o", str(parts / "all.h5"), "--force"]
 
 
+def test_a_calibrated_scene_s_merge_job_calibrates_the_merged_file(sandbox):
+    """A part runs some starts and does not calibrate (mscap.service.calibrated): the merge
+    job's `mscap run` on the merged file does."""
+    s = scene(sandbox.tmp, "k_min = 2\nk_max = 3")
+    s.write_text(s.read_text() + '[calibration]\npose = "bend"\n')
+    proc = sandbox.run("submit_array.sh", "jobs/tiny.toml", MSCAP_REPO=str(sandbox.tmp))
+    _, merge = sandbox.calls
+    parts = sandbox.tmp / "results" / "tiny"
+    for p in ("results_k2.h5", "results_k3.h5"):
+        (parts / p).write_text("")
+    before = len(sandbox.calls)
+    done = subprocess.run(["/bin/sh", "-c", option(merge, "--wrap")], env=sandbox.env, capture_output=True,
+                          text=True, timeout=10)
+    assert done.returncode == 0, done.stderr
+    merged = str(parts / "all.h5")
+    assert [call[1] for call in sandbox.calls[before:]] == ["merge", "run"]
+    assert sandbox.calls[-1][1:] == ["run", str(s), "-o", merged]
+    assert "then mscap run calibrates" in proc.stdout
+    s.write_text(s.read_text().replace("k_max = 3", "k_max = 3\ncalibrate_best = 0"))
+    sandbox.run("submit_array.sh", "jobs/tiny.toml", MSCAP_REPO=str(sandbox.tmp))
+    assert "mscap run" not in option(sandbox.calls[-1], "--wrap")
+
+
 @pytest.mark.parametrize("mode", ["plain", "cluster"])
 def test_submit_reads_either_sbatch_output(sandbox, mode):
     scene(sandbox.tmp)
