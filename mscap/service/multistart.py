@@ -31,6 +31,11 @@ seconds without a progress line (:mod:`mscap.service.heartbeat`). SIGTERM (what 
 at the time limit), SIGUSR1 and Ctrl-C stop the master from handing out more work; busy
 workers drop their start at its next step (it runs again on resume), the master records
 what finished and writes the selection (:func:`mscap.service.farm.run`).
+
+In a scene with ``[calibration]`` the starts are followed by a calibration of the best
+designs, farmed the same way, and the design and k are chosen on calibrated read-back error
+(:mod:`mscap.service.calibrated`); storing a new run drops that calibration until the job's
+end makes it again.
 """
 
 from __future__ import annotations

@@ -41,6 +41,10 @@ class Cost:
     check_cpu_s: float
     peak_rss_mb: float
     peak_run: str
+    #: The in-run calibration (:mod:`mscap.service.calibrated`): its wall time and its
+    #: simulations' summed wall time (worker-seconds); NaN without one.
+    calibration_wall_s: float = math.nan
+    calibration_simulation_s: float = math.nan
 
     @property
     def core_hours(self) -> float:
@@ -49,7 +53,9 @@ class Cost:
     def as_dict(self) -> dict:
         return {"runs": self.runs, "runs_measured": self.measured, "run_cpu_s": self.run_cpu_s,
                 "check_cpu_s": self.check_cpu_s, "core_hours": self.core_hours,
-                "peak_rss_mb": _finite_or_none(self.peak_rss_mb), "peak_run": self.peak_run or None}
+                "peak_rss_mb": _finite_or_none(self.peak_rss_mb), "peak_run": self.peak_run or None,
+                "calibration_wall_s": _finite_or_none(self.calibration_wall_s),
+                "calibration_simulation_s": _finite_or_none(self.calibration_simulation_s)}
 
 
 def cost(store) -> Cost:
@@ -61,21 +67,28 @@ def cost(store) -> Cost:
     measured = [row for row in cpu if math.isfinite(row[1])]
     peaks = [(peak, rid) for rid, _, _, peak in cpu if math.isfinite(peak)]
     peak, peak_run = max(peaks) if peaks else (math.nan, "")
+    calibration = store["calibration"].attrs if "calibration" in store else {}
     return Cost(runs=len(rows), measured=len(measured), run_cpu_s=sum(r[1] for r in measured),
-                check_cpu_s=sum(r[2] for r in measured if math.isfinite(r[2])), peak_rss_mb=peak, peak_run=peak_run)
+                check_cpu_s=sum(r[2] for r in measured if math.isfinite(r[2])), peak_rss_mb=peak, peak_run=peak_run,
+                calibration_wall_s=float(calibration.get("wall_s", math.nan)),
+                calibration_simulation_s=float(calibration.get("simulation_s", math.nan)))
 
 
 def cost_text(c: Cost) -> str:
-    """One line: the core-hours of the runs that carry them and the largest worker."""
+    """One line: the core-hours of the runs that carry them, the largest worker, and the
+    in-run calibration's wall time and worker-seconds."""
     if not c.measured:
-        return (f"cost: no CPU time stored ({c.runs} run{'s' * (c.runs != 1)}, written before mscap "
-                f"recorded it)")
-    line = (f"cost: {c.core_hours:.3g} core-hours of CPU (runs {c.run_cpu_s / 3600:.3g}, finer-mesh checks "
-            f"{c.check_cpu_s / 3600:.3g}) over {c.measured} run{'s' * (c.measured != 1)}")
-    if c.measured < c.runs:
+        line = f"cost: no CPU time stored ({c.runs} run{'s' * (c.runs != 1)}, written before mscap recorded it)"
+    else:
+        line = (f"cost: {c.core_hours:.3g} core-hours of CPU (runs {c.run_cpu_s / 3600:.3g}, finer-mesh checks "
+                f"{c.check_cpu_s / 3600:.3g}) over {c.measured} run{'s' * (c.measured != 1)}")
+    if c.measured < c.runs and c.measured:
         line += f" ({c.runs - c.measured} more stored before mscap recorded CPU time)"
     if math.isfinite(c.peak_rss_mb):
         line += f"; largest worker peak {c.peak_rss_mb:.0f} MB (run {c.peak_run})"
+    if math.isfinite(c.calibration_wall_s):
+        line += (f"; the calibration of the best designs {c.calibration_wall_s:.0f} s wall, its simulations "
+                 f"{c.calibration_simulation_s:.0f} worker-s")
     return line
 
 

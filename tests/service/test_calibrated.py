@@ -110,6 +110,7 @@ def test_the_store_keeps_the_calibration_and_the_user_sees_the_choice(scene, tmp
     assert main(["inspect", str(path)]) == 0
     text = capsys.readouterr().out
     assert "calibrated (mm)" in text and f"* chosen k = 2, design {records[0].id}:initial" in text
+    assert "the calibration of the best designs 1 s wall, its simulations 2 worker-s" in text
     assert "the objective alone would have chosen k3_s0002_random (k = 3), which calibrates at 0.3 mm" in text
     panels = plot_results(path, tmp_path / "r.png")
     assert [(p.k, p.design, p.error_mm, p.chosen) for p in panels] == \

@@ -71,7 +71,8 @@ def test_usage_round_trips_and_inspect_sums_it(tmp_path, scene, capsys):
     assert main(["inspect", str(path), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["cost"] == {
         "runs": 3, "runs_measured": 2, "run_cpu_s": 7200.0, "check_cpu_s": 360.0, "core_hours": 2.1,
-        "peak_rss_mb": 900.25, "peak_run": "k3_s3000_random"}
+        "peak_rss_mb": 900.25, "peak_run": "k3_s3000_random",
+        "calibration_wall_s": None, "calibration_simulation_s": None}
     assert main(["inspect", str(path)]) == 0
     assert cost_text(c) in capsys.readouterr().out
     assert main(["inspect", str(path), "--run", "k2_s2000_random"]) == 0
