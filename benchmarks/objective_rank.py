@@ -22,7 +22,7 @@ the scene's own layout, and reports from the file's ``/calibration``:
 ::
 
     .venv/bin/python benchmarks/objective_rank.py jobs/pneumatic_quick.toml [--widen 0.25]
-        [--multistart-seed 1 --lloyd-fraction 0.5 --starts-per-k 3] [--calibrate-best N]
+        [--multistart-seed 1 --lloyd-fraction 0.5 --starts-per-k 3] [--calibrate-best N] [--scene-start]
         [--tag shipped] [--out out/objective_rank]
 
 ``--widen F`` widens every training axis of the scene's ``[calibration.training]`` by F of
@@ -81,7 +81,8 @@ def with_multistart(text: str, **values) -> str:
     body, nxt, tail = rest.partition("\n[")
     for key in values:  # only in the [multistart] table: [calibration.noise] has a seed too
         body = re.sub(rf"^{key} = .*\n?", "", body, flags=re.M)
-    lines = "".join(f"{key} = {value!r}\n" for key, value in values.items())
+    lines = "".join(f"{key} = {str(value).lower() if isinstance(value, bool) else repr(value)}\n"
+                    for key, value in values.items())
     return head + sep + lines + body + nxt + tail
 
 
@@ -99,6 +100,7 @@ def main() -> None:
     parser.add_argument("--lloyd-fraction", type=float)
     parser.add_argument("--starts-per-k", type=int)
     parser.add_argument("--calibrate-best", type=int, help="runs per k calibrated (default: every run)")
+    parser.add_argument("--scene-start", action="store_true", help="one more start from the scene's layout")
     parser.add_argument("--tag", default="shipped")
     parser.add_argument("--out", default="out/objective_rank")
     parser.add_argument("--csv", default=str(ROOT / "docs" / "objective_rank.csv"))
@@ -114,7 +116,7 @@ def main() -> None:
     if args.widen:
         text = widened(text, args.widen)
     text = with_multistart(text, seed=args.multistart_seed, lloyd_fraction=args.lloyd_fraction,
-                           starts_per_k=args.starts_per_k)
+                           starts_per_k=args.starts_per_k, scene_start=True if args.scene_start else None)
     scene_file = out / f"{name}.toml"
     scene_file.write_text(text)
     results, log = out / f"{name}.h5", out / f"{name}.log"

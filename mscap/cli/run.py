@@ -15,7 +15,8 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", default="results.h5", help="HDF5 results file (default: %(default)s)")
     p.add_argument("--k-min", type=int, help="only starts with k >= this")
     p.add_argument("--k-max", type=int, help="only starts with k <= this")
-    p.add_argument("--seeds", metavar="A:B", help="only start indices A..B-1 within each k")
+    p.add_argument("--seeds", metavar="A:B", help="only start indices A..B-1 within each k (the start from the "
+                                                  "scene's layout, [multistart] scene_start, is index 999)")
     p.add_argument("--starts-per-k", type=int, metavar="N",
                    help="N starts per k instead of the scene's [multistart] starts_per_k")
     p.add_argument("--prune", metavar="STEP:ETA",
@@ -49,21 +50,21 @@ def run(args) -> int:
     from mpi4py import MPI
 
     from mscap.service.multistart import run_multistart
-    from mscap.service.selection import configurations
+    from mscap.service.selection import start_index
     from mscap.cli.common import load_scene_for, progress_printer
     from mscap.scene.loader import with_overrides
 
     comm = MPI.COMM_WORLD
     scene = with_overrides(load_scene_for(args), args.starts_per_k, args.prune, args.keep_repeated_starts,
                            args.check_all_runs, args.calibrate_best)
-    index_of = {c.id: i % max(scene.multistart.starts_per_k, 1) for i, c in enumerate(configurations(scene))}
+
     lo, hi = 0, None
     if args.seeds:
         a, _, b = args.seeds.partition(":")
         lo, hi = int(a or 0), (int(b) if b else None)
 
     def keep(config) -> bool:
-        i = index_of[config.id]
+        i = start_index(config)
         return ((args.k_min is None or config.k >= args.k_min) and (args.k_max is None or config.k <= args.k_max)
                 and i >= lo and (hi is None or i < hi))
 

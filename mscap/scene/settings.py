@@ -332,7 +332,8 @@ class MultistartSettings:
     (``calibrate_initial``) and the scene's layout as a baseline (``calibrate_scene``),
     under ``calibrate_seeds`` noise seeds, and chooses the design and k on calibrated
     read-back error (:mod:`mscap.service.calibrated`); ``calibrate_best = 0`` chooses by
-    the objective alone."""
+    the objective alone. ``scene_start``: one more start, from the scene's own layout, at
+    its k (a hand-placed layout to improve on; :func:`mscap.service.selection.configurations`)."""
 
     k_min: int = 2
     k_max: int = 6
@@ -350,6 +351,7 @@ class MultistartSettings:
     calibrate_initial: bool = True
     calibrate_scene: bool = True
     calibrate_seeds: int = 3
+    scene_start: bool = False
 
 
 @dataclass(frozen=True)

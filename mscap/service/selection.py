@@ -19,11 +19,15 @@ if TYPE_CHECKING:
 
 __all__ = ["ERROR_BOUND", "StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS", "run_id", "configurations",
            "repeated_starts", "choose_k", "run_score", "rank_key", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND",
-           "SELECTION_RULE_CALIBRATED", "CalibratedDesign", "by_calibration"]
+           "SELECTION_RULE_CALIBRATED", "CalibratedDesign", "by_calibration", "SCENE_START_INDEX", "start_index"]
 
 #: The ``init`` kinds the multi-start schedules, in order (:func:`configurations`: Lloyd
-#: starts first, then random ones); a subset of :data:`mscap.geometry.initial.LAYOUT_INITS`.
-MULTISTART_INITS = ("lloyd", "random")
+#: starts first, then random ones, then the scene's own layout with ``scene_start``); the
+#: same as :data:`mscap.geometry.initial.LAYOUT_INITS`.
+MULTISTART_INITS = ("lloyd", "random", "scene")
+#: The start index of the scene-layout start (``[multistart] scene_start``): never a
+#: regular start's, since ``starts_per_k`` < 1000.
+SCENE_START_INDEX = 999
 
 #: One-line statement of the k rule, stored beside the choice in ``/selection``.
 SELECTION_RULE = ("chosen k = smallest k with a successful run such that no larger k with a successful "
@@ -62,15 +66,27 @@ def configurations(scene: Scene) -> list[StartConfig]:
     ``ceil(lloyd_fraction · starts_per_k)`` use Lloyd layouts, the rest random ones. Start
     ``index`` of ``k`` gets ``seed = multistart.seed · 10⁶ + k · 10³ + index``: a function
     of the scene and (k, index) only — never of the rank, the number of ranks or the order
-    in which runs finish.
+    in which runs finish. With ``scene_start``, the k of the scene's own layout (if in
+    ``k_min..k_max``) gets one more start from that layout, index :data:`SCENE_START_INDEX`
+    (e.g. ``k4_s4999_scene``).
     """
     ms = scene.multistart
     n = ms.starts_per_k
     check_multistart(scene.path, ms)
     # round() first: 0.2 * 25 is 5.000000000000001 in floating point and must give 5.
     n_lloyd = min(n, math.ceil(round(ms.lloyd_fraction * n, 9)))
-    return [StartConfig(k, ms.seed * 1_000_000 + k * 1000 + index, "lloyd" if index < n_lloyd else "random")
-            for k in range(ms.k_min, ms.k_max + 1) for index in range(n)]
+    configs = []
+    for k in range(ms.k_min, ms.k_max + 1):
+        configs += [StartConfig(k, ms.seed * 1_000_000 + k * 1000 + index, "lloyd" if index < n_lloyd else "random")
+                    for index in range(n)]
+        if ms.scene_start and k == scene.layout.k:
+            configs.append(StartConfig(k, ms.seed * 1_000_000 + k * 1000 + SCENE_START_INDEX, "scene"))
+    return configs
+
+
+def start_index(config: StartConfig) -> int:
+    """A start's index within its k (``mscap run --seeds A:B`` keeps A <= index < B)."""
+    return config.seed % 1000
 
 
 def repeated_starts(scene: Scene, configs: Sequence[StartConfig] | None = None) -> dict[str, str]:

@@ -10,8 +10,9 @@ import pytest
 
 from mscap.errors import SceneError
 from mscap.scene import load_scene
-from mscap.service.selection import (RunSummary, StartConfig, choose_k, configurations, decision_margin,
-                                     repeated_starts, run_id, select)
+from mscap.geometry.initial import initial_layout
+from mscap.service.selection import (SCENE_START_INDEX, RunSummary, StartConfig, choose_k, configurations,
+                                     decision_margin, repeated_starts, run_id, select, start_index)
 
 TOL = 0.05
 
@@ -32,6 +33,20 @@ def test_configurations(scene):
         assert [c.seed for c in mine] == [k * 1000 + i for i in range(5)]
     assert len({c.id for c in configs}) == len(configs)
     assert configs[0] == StartConfig(2, 2000, "lloyd") and configs[0].id == "k2_s2000_lloyd"
+
+
+def test_a_scene_start_is_one_more_start_from_the_scene_layout_at_its_k(scene):
+    """`[multistart] scene_start`: index 999 of the scene layout's k (2 here), after that k's
+    regular starts; none when that k is outside k_min..k_max; `--seeds` keeps it by index."""
+    ms = replace(scene.multistart, scene_start=True)
+    configs = configurations(replace(scene, multistart=ms))
+    assert [c.id for c in configs if c.k == 2][-2:] == ["k2_s2004_random", "k2_s2999_scene"]
+    assert len(configs) == 3 * 5 + 1 and start_index(configs[5]) == SCENE_START_INDEX
+    assert [start_index(c) for c in configs[:6]] == [0, 1, 2, 3, 4, 999]
+    layout = initial_layout(scene, 2, configs[5].seed, "scene")
+    assert layout is scene.layout
+    outside = replace(ms, k_min=3)
+    assert all(c.init != "scene" for c in configurations(replace(scene, multistart=outside)))
 
 
 @pytest.mark.parametrize("n, fraction, n_lloyd", [(25, 0.2, 5), (2, 0.2, 1), (3, 0.5, 2), (4, 0.0, 0),
