@@ -21,7 +21,7 @@ the scene's own layout, and reports from the file's ``/calibration``:
 
 ::
 
-    .venv/bin/python benchmarks/objective_rank.py jobs/pneumatic_quick.toml [--widen 0.25]
+    .venv/bin/python benchmarks/objective_rank.py jobs/pneumatic_quick.toml [--widen 0.25 [--axes AXIS ...]]
         [--multistart-seed 1 --lloyd-fraction 0.5 --starts-per-k 3] [--calibrate-best N] [--scene-start]
         [--tag shipped] [--out out/objective_rank]
 
@@ -53,16 +53,18 @@ FIELDS = ["scene", "tag", "design", "kind", "k", "bound_mm", "error_mm", "spread
           "objective_choice", "spearman", "run_s", "calibration_s", "simulation_s", "starts_s"]
 
 
-def widened(text: str, fraction: float) -> str:
-    """The scene text with every ``[calibration.training]`` axis ``[lo, hi, n]`` widened by
-    ``fraction`` of its span: upwards when it starts at 0 (an inflation, an indentation),
-    else about its centre (an angle)."""
+def widened(text: str, fraction: float, axes=()) -> str:
+    """The scene text with every ``[calibration.training]`` axis ``[lo, hi, n]`` (or only
+    those named in ``axes``) widened by ``fraction`` of its span: upwards when it starts at 0
+    (an inflation, an indentation), else about its centre (an angle)."""
     head, sep, rest = text.partition("[calibration.training]\n")
     if not sep:
         sys.exit("the scene has no [calibration.training] table")
     body, nxt, tail = rest.partition("\n[")
 
     def widen(match: re.Match) -> str:
+        if axes and match[1] not in axes:
+            return match[0]
         lo, hi, n = float(match[2]), float(match[3]), match[4]
         grow = fraction * (hi - lo)
         lo, hi = (lo, hi + grow) if lo == 0 else (lo - grow / 2, hi + grow / 2)
@@ -96,6 +98,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("scene", help="a calibrated scene file (designed for read-back)")
     parser.add_argument("--widen", type=float, default=0.0, help="widen the training axes by this fraction")
+    parser.add_argument("--axes", nargs="+", default=(), help="only these training axes (not a periodic one)")
     parser.add_argument("--multistart-seed", type=int)
     parser.add_argument("--lloyd-fraction", type=float)
     parser.add_argument("--starts-per-k", type=int)
@@ -114,7 +117,7 @@ def main() -> None:
     name = f"{source.stem}_{args.tag}"
     text = source.read_text()
     if args.widen:
-        text = widened(text, args.widen)
+        text = widened(text, args.widen, args.axes)
     text = with_multistart(text, seed=args.multistart_seed, lloyd_fraction=args.lloyd_fraction,
                            starts_per_k=args.starts_per_k, scene_start=True if args.scene_start else None)
     scene_file = out / f"{name}.toml"
