@@ -103,11 +103,12 @@ def score_designs(scene: Scene, designs, bounds: dict[str, float], cache) -> tup
     """Each design's calibrated error from the cache, averaged over :func:`noise_seeds`
     (every design sees the same draws of a seed), with its spread over them, and the summed
     simulation wall time of the designs' families. A design that cannot be scored (its
-    reference pose failed, say) gets NaN and a warning; the others go on."""
+    reference pose failed, say) gets NaN and a warning; the others go on. A layout under two
+    labels (the scene's, and a scene start's initial layout) counts its simulations once."""
     from mscap.calibration.service import evaluate
 
     seeds = noise_seeds(scene)
-    out, simulation_s = [], 0.0
+    out, simulation_s, simulated = [], 0.0, set()
     for design in designs:
         try:
             (scored,) = evaluate(scene, [design], cache, seeds=seeds)
@@ -117,7 +118,9 @@ def score_designs(scene: Scene, designs, bounds: dict[str, float], cache) -> tup
             continue
         # the sequence's mean point error of each seed (its runs are one block of rows)
         errors = np.nanmean(scored.errors.mean.reshape(len(seeds), -1), axis=1)
-        simulation_s += scored.simulation_s
+        if design.key not in simulated:  # one layout under two labels was simulated once
+            simulated.add(design.key)
+            simulation_s += scored.simulation_s
         out.append(CalibratedDesign(design.label, design.k, float(errors.mean()),
                                     float(errors.std()) if len(errors) > 1 else math.nan,
                                     float(bounds.get(design.label, math.nan))))

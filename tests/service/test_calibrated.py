@@ -241,3 +241,24 @@ def test_a_calibration_stopped_midway_chooses_nothing_from_it(scene, tmp_path, m
     assert "stopped before every design was calibrated" in said[-1]
     with read_store(path) as store:
         assert "calibration" not in store and not store_selection(store).by_calibration
+
+
+def test_a_layout_under_two_labels_counts_its_simulations_once(scene, monkeypatch):
+    """The scene's layout and a scene start's initial layout are one cache entry: the
+    calibration's simulation time counts it once; each label gets its (equal) error."""
+    import mscap.calibration.service as service
+    from mscap.calibration.reconstruction import PoseErrors
+    from mscap.service.calibrated import score_designs
+
+    def fake(scene, designs, cache, noise=None, seeds=()):
+        errors = np.arange(len(seeds) * 2 * 3, dtype=float).reshape(len(seeds) * 2, 3)   # 2 runs, 3 poses
+        return [service.DesignScore(designs[0], PoseErrors(errors, errors), np.ones(3), 5, 0, 5, 0, 7.0)]
+    monkeypatch.setattr(service, "evaluate", fake)
+    same = tuple(np.array(o) for o in scene.layout.outlines)
+    designs = [Candidate("scene", same), Candidate("k2_s2999_scene:initial", same),
+               Candidate("k2_s2999_scene", tuple(o + 1.0 for o in same))]
+    scored, simulation_s = score_designs(scene, designs, {}, "unused.h5")
+    assert simulation_s == 14.0                                   # two layouts, not three
+    # seed i's runs are rows 2i, 2i+1: means 2.5, 8.5, 14.5 -> 8.5 ± std
+    assert [d.error_mm for d in scored] == [8.5] * 3
+    assert scored[0].spread_mm == pytest.approx(np.std([2.5, 8.5, 14.5]))
