@@ -39,8 +39,8 @@ from mscap.scene.settings import Layer, MeshSettings, Scene
 __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
            "predicted_errors", "rung_of", "settings_for_tolerance", "sized", "with_layout", "poke_zones",
            "no_finer_than", "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "P2_ZONE_EDGE", "P2_ZONE_RADII",
-           "HELD_STRIP_EDGE_MM", "HELD_STRIP_MM", "refines_pokes", "p2_poke_refinement", "bend_radius", "curvature_edge", "ElasticRung",
-           "POKE_ELASTIC_LADDER", "BENDING_ELEMENT_ORDER", "elastic_for_signal", "COUPLING_RUNG", "for_couplings"]
+           "HELD_STRIP_EDGE_MM", "HELD_STRIP_MM", "refines_pokes", "p2_poke_refinement", "bend_radius",
+           "curvature_edge", "ElasticRung", "POKE_ELASTIC_LADDER", "BENDING_ELEMENT_ORDER", "elastic_for_signal", "COUPLING_RUNG", "for_couplings"]
 
 log = logging.getLogger(__name__)
 

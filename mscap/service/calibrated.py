@@ -40,7 +40,7 @@ import numpy as np
 
 from mscap.errors import MscapError
 from mscap.scene.settings import MAX_SEED
-from mscap.service.selection import CalibratedDesign, rank_key, run_score
+from mscap.service.selection import CalibratedDesign, Selection, ranked
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -66,20 +66,14 @@ def candidates(scene: Scene, store) -> tuple[list, dict[str, float]]:
     """The designs to calibrate from an open results file, as
     :class:`~mscap.calibration.service.Candidate` s, and each one's read-back bound (NaN: none):
     per k the best ``calibrate_best`` runs by the objective (the order of
-    :func:`~mscap.service.selection.rank_key`), then their initial layouts, then the scene's."""
+    :func:`~mscap.service.selection.ranked`), then their initial layouts, then the scene's."""
     from mscap.calibration.service import Candidate
     from mscap.service.store import read_run, run_summaries
 
     ms = scene.multistart
-    runs = [r for r in run_summaries(store) if r.ok and not r.pruned and math.isfinite(r.metric)]
-    by_bound = bool(runs) and all(math.isfinite(r.bound_mm) and r.bound_mm > 0 for r in runs)
-    best = []
-    for k in sorted({r.k for r in runs}):
-        mine = sorted((r for r in runs if r.k == k and math.isfinite(run_score(r, by_bound))),
-                      key=lambda r: rank_key(r, by_bound))
-        best += mine[:ms.calibrate_best]
+    _, contenders = ranked(run_summaries(store))
     designs, bounds = [], {}
-    records = [read_run(store, r.id) for r in best]
+    records = [read_run(store, r.id) for k in sorted(contenders) for r in contenders[k][:ms.calibrate_best]]
     for record in records:
         designs.append(Candidate(record.id, tuple(record.final_outlines)))
         bounds[record.id] = record.bound_mm
@@ -127,10 +121,11 @@ def score_designs(scene: Scene, designs, bounds: dict[str, float], cache) -> tup
     return out, simulation_s
 
 
-def calibrate_selection(scene: Scene, path, comm, say: Callable[[str], None] | None = None) -> bool:
+def calibrate_selection(scene: Scene, path, comm, say: Callable[[str], None] | None = None) -> Selection | None:
     """Every rank: calibrate the candidates of the results file ``path`` and, on rank 0,
-    store them (``/calibration``) and the selection made on them. Returns whether the
-    selection is now made on calibrated error (rank 0; ``False`` on the workers)."""
+    store them (``/calibration``) and the selection made on them. Returns that selection
+    on rank 0, ``None`` on the workers and when no calibration could be made (the file
+    keeps the objective's)."""
     from mscap.calibration.service import simulate_family
     from mscap.service.store import open_store, read_store, run_summaries, write_calibration, write_selection, \
         store_selection
@@ -148,7 +143,7 @@ def calibrate_selection(scene: Scene, path, comm, say: Callable[[str], None] | N
                         path, exc)
     designs = comm.bcast(designs, root=0)
     if not designs:
-        return False
+        return None
     cache = cache_path(path)
     if rank == 0:
         say(f"calibrating {len(designs)} designs to choose on read-back error (the best "
@@ -157,23 +152,24 @@ def calibrate_selection(scene: Scene, path, comm, say: Callable[[str], None] | N
             + (", the scene's layout" if "scene" in bounds else "") + f"); cache {cache}")
     complete = simulate_family(scene, designs, cache, comm, progress=say)
     if rank != 0:
-        return False
+        return None
     if not complete:  # stopped: a choice among the designs that happen to be done would be no choice
         say(f"{path}: stopped before every design was calibrated; the selection stays the objective's; "
             "rerun the same command to complete the calibration (the simulations done are cached)")
-        return False
+        return None
     calibrated, simulation_s = score_designs(scene, designs, bounds, cache)
     if not any(math.isfinite(d.error_mm) for d in calibrated if d.which != "scene"):
         say(f"{path}: no design could be calibrated (see the warnings); the selection stays the objective's")
-        return False
+        return None
     noise = scene.calibration.noise
     with open_store(path, scene, new_session=False) as store:
         workers_s = float(sum(r.wall_s for r in run_summaries(store)))
         write_calibration(store, calibrated, {
             "noise_seeds": np.array(noise_seeds(scene), dtype=np.int64), "noise_runs": int(noise.runs),
             "cache": str(cache), "wall_s": time.perf_counter() - started, "simulation_s": simulation_s})
-        write_selection(store, store_selection(store))
+        selection = store_selection(store)
+        write_selection(store, selection)
     share = f", {100 * simulation_s / workers_s:.0f} % of the starts' {workers_s:.0f} s" if workers_s > 0 else ""
     say(f"calibrated {len(calibrated)} designs under {len(noise_seeds(scene))} noise seeds × {noise.runs} runs in "
         f"{time.perf_counter() - started:.0f} s (simulations {simulation_s:.0f} worker-s{share})")
-    return True
+    return selection

@@ -57,9 +57,8 @@ from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
 from mscap.service.pruning import Envelope, PruneRule, Rungs, Verdict, history_values, prune_rule, score, \
     score_kind
 from mscap.service.selection import StartConfig, configurations, rank_key, repeated_starts, run_score, select
-from mscap.service.store import drop_calibration, failed_record, finished_ids, open_store, read_run, read_store, \
-    read_calibration, record_from_result, run_summaries, run_summary, store_selection, write_run, \
-    write_selection
+from mscap.service.store import drop_calibration, failed_record, finished_ids, open_store, read_calibration, \
+    read_run, record_from_result, run_summaries, run_summary, write_run, write_selection
 from mscap.service.usage import Meter
 
 if TYPE_CHECKING:
@@ -264,9 +263,9 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
         return summary
     if comm.bcast(None if summary is None else summary["stopped"], root=0):
         return summary
-    if calibrated.calibrate_selection(scene, path, comm, progress) and rank == 0:
-        with read_store(path) as store:
-            summary["choice"] = choice_text(store_selection(store))
+    selection = calibrated.calibrate_selection(scene, path, comm, progress)
+    if selection is not None:  # rank 0
+        summary["choice"] = choice_text(selection)
     return summary
 
 

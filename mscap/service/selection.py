@@ -17,9 +17,10 @@ from mscap.scene.loader import check_multistart
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["ERROR_BOUND", "StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS", "run_id", "configurations",
-           "repeated_starts", "choose_k", "run_score", "rank_key", "select", "SELECTION_RULE", "SELECTION_RULE_BOUND",
-           "SELECTION_RULE_CALIBRATED", "CalibratedDesign", "by_calibration", "SCENE_START_INDEX", "start_index"]
+__all__ = ["ERROR_BOUND", "StartConfig", "RunSummary", "KSummary", "Selection", "MULTISTART_INITS", "run_id",
+           "configurations", "repeated_starts", "choose_k", "run_score", "rank_key", "select", "SELECTION_RULE",
+           "SELECTION_RULE_BOUND", "SELECTION_RULE_CALIBRATED", "CalibratedDesign", "by_calibration",
+           "SCENE_START_INDEX", "start_index", "ranked", "design_of"]
 
 #: The ``init`` kinds the multi-start schedules, in order (:func:`configurations`: Lloyd
 #: starts first, then random ones, then the scene's own layout with ``scene_start``); the
@@ -167,11 +168,21 @@ class CalibratedDesign:
     @property
     def which(self) -> str:
         """``"final"``, ``"initial"`` or ``"scene"``."""
-        return "scene" if self.label == "scene" else "initial" if self.label.endswith(":initial") else "final"
+        return design_of(self.label)[1]
 
     @property
     def run_id(self) -> str | None:
-        return None if self.label == "scene" else self.label.partition(":")[0]
+        return design_of(self.label)[0]
+
+
+def design_of(label: str) -> tuple[str | None, str]:
+    """A calibrated design's label as ``(run id, which layout)``: ``"k2_s2000_lloyd"`` →
+    ``("k2_s2000_lloyd", "final")``, ``"k2_s2000_lloyd:initial"`` → ``(…, "initial")``,
+    ``"scene"`` → ``(None, "scene")``."""
+    if label == "scene":
+        return None, "scene"
+    run, _, which = label.partition(":")
+    return run, which or "final"
 
 
 @dataclass(frozen=True)
@@ -246,7 +257,7 @@ class Selection:
     @property
     def chosen_which(self) -> str:
         """``"final"`` or ``"initial"``: which layout of ``chosen_run`` was chosen."""
-        return "initial" if (self.chosen_design or "").endswith(":initial") else "final"
+        return design_of(self.chosen_design or "")[1]
 
     def calibrated_of(self, label: str | None) -> CalibratedDesign | None:
         return next((d for d in self.calibrated if d.label == label), None)
@@ -426,6 +437,19 @@ def rank_key(run, by_bound: bool) -> tuple[float, str]:
     return -run_score(run, by_bound), run.id
 
 
+def ranked(runs: Iterable[RunSummary]) -> tuple[bool, dict[int, list[RunSummary]]]:
+    """Whether the runs are ranked by their read-back bound (every one that can be a k's
+    best carries a finite one) and, per k, those runs best first (:func:`rank_key`): the
+    successful runs with a finite metric. A pruned run has a design but was stopped as
+    dominated, unfinished and unchecked: it never is the best of its k."""
+    good = [r for r in runs if r.ok and not r.pruned and math.isfinite(r.metric)]
+    by_bound = bool(good) and all(math.isfinite(r.bound_mm) and r.bound_mm > 0 for r in good)
+    contenders: dict[int, list[RunSummary]] = {}
+    for r in sorted(good, key=lambda r: rank_key(r, by_bound)):
+        contenders.setdefault(r.k, []).append(r)
+    return by_bound, contenders
+
+
 def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[int] = (),
            calibrated: Iterable[CalibratedDesign] = ()) -> Selection:
     """Best run per k (largest metric among the finished runs, pruned ones left out; ties go
@@ -444,16 +468,12 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
     """
     runs = list(runs)
     ks = sorted(set(k_values) | {r.k for r in runs})
-    # A pruned run has a design but was stopped as dominated, unfinished and unchecked:
-    # it never is the best of its k.
-    good = [r for r in runs if r.ok and not r.pruned and math.isfinite(r.metric)]
-    by_bound = bool(good) and all(math.isfinite(r.bound_mm) and r.bound_mm > 0 for r in good)
+    by_bound, contenders = ranked(runs)
     score = lambda r: run_score(r, by_bound)  # noqa: E731
     per_k = []
     for k in ks:
         mine = [r for r in runs if r.k == k]
-        ok = [r for r in good if r.k == k]
-        best = min(ok, key=lambda r: rank_key(r, by_bound)) if ok else None
+        best = contenders[k][0] if k in contenders else None
         done = sum(r.ok for r in mine)
         per_k.append(KSummary(k=k, runs_ok=done, runs_failed=len(mine) - done,
                               best_metric=None if best is None else best.metric,
@@ -461,7 +481,7 @@ def select(runs: Iterable[RunSummary], plateau_tol: float, k_values: Iterable[in
                               wall_s=float(sum(r.wall_s for r in mine)),
                               best_bound_mm=None if best is None or not by_bound else best.bound_mm,
                               runs_pruned=sum(r.pruned for r in mine)))
-    best_of = {s.k: next(r for r in good if r.id == s.best_run) for s in per_k if s.best_run is not None}
+    best_of = {k: contenders[k][0] for k in ks if k in contenders}
     chosen = choose_k(list(best_of), [score(r) for r in best_of.values()], plateau_tol)
     chosen_run = next((s.best_run for s in per_k if s.k == chosen), None)
     valid = [s.k for s in per_k if s.best_run is not None]

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mscap.service.selection import design_of
+
 __all__ = ["Panel", "panels", "grid_shape", "plot_results", "draw_layout", "PANEL_SIZE_IN", "CHOSEN_COLOUR",
            "MAX_COLUMNS"]
 
@@ -46,7 +48,7 @@ class Panel:
     @property
     def initial(self) -> bool:
         """Is the panel's layout its run's initial one (calibration preferred it)?"""
-        return (self.design or "").endswith(":initial")
+        return design_of(self.design or "")[1] == "initial"
 
     @property
     def empty(self) -> bool:
@@ -77,7 +79,7 @@ def panels(selection) -> list[Panel]:
     chosen k (if any) is flagged. Chosen on calibrated error, a panel shows the k's best
     calibrated design."""
     def run_of(s):
-        return s.best_design.partition(":")[0] if s.best_design else s.best_run
+        return design_of(s.best_design)[0] if s.best_design else s.best_run
     return [Panel(k=s.k, run_id=run_of(s), metric=s.best_metric, runs_ok=s.runs_ok,
                   runs_failed=s.runs_failed, chosen=s.k == selection.chosen_k and run_of(s) is not None,
                   bound_mm=s.best_bound_mm, error_mm=s.best_error_mm, design=s.best_design)

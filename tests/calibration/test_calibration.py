@@ -207,6 +207,9 @@ class _OneRank:
     def Get_size(self):
         return 1
 
+    def bcast(self, value, root=0):
+        return value
+
 
 def designs(scene):
     base = tuple(np.array(o) for o in scene.layout.outlines)

@@ -26,7 +26,7 @@ from mscap.service.selection import CalibratedDesign, RunSummary, by_calibration
 from mscap.viz.layouts import plot_results
 from mscap.service.store import (drop_calibration, open_store, read_calibration, read_store, store_selection,
                                  write_calibration, write_run, write_selection)
-from tests.calibration.test_calibration import calibration_scene
+from tests.calibration.test_calibration import _OneRank, calibration_scene
 from tests.conftest import synthetic_record
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -209,19 +209,6 @@ def test_a_lead_within_the_noise_seeds_spread_is_called_a_tie():
     # 0.255 - 0.25 = 0.005 < 2 * hypot(0.004, 0.01) = 0.0215
     assert "next best b 0.255 mm (+2.0 %, within the noise seeds' spread: a tie)" in text
     assert "a tie" not in select(runs(), TOL, range(2, 4), CALIBRATED).verdict()   # 0.03 > 0.028
-
-
-class _OneRank:
-    """A stand-in communicator: one rank, no MPI calls."""
-
-    def Get_rank(self):
-        return 0
-
-    def Get_size(self):
-        return 1
-
-    def bcast(self, value, root=0):
-        return value
 
 
 def test_a_calibration_stopped_midway_chooses_nothing_from_it(scene, tmp_path, monkeypatch):
