@@ -17,14 +17,15 @@ def write_csv(rows, path: Path, fields) -> None:
 
 
 def tolerance_text(path: Path, tolerance: float = 0.01) -> str:
-    """A scene file's text with its three hand-set ``[mesh]`` sizes replaced by
-    ``tolerance = …`` (the mesh the size ladder picks, with zones under the balls)."""
+    """A scene file's text with its three hand-set ``[mesh]`` sizes (or its own tolerance)
+    replaced by ``tolerance = …`` (the mesh the size ladder picks, with zones under the
+    balls)."""
     lines, table = [], ""
     for line in Path(path).read_text().splitlines():
         if line.startswith("["):
             table = line.strip()
         if table == "[mesh]" and line.split("=")[0].strip() in ("edge_length_mm", "edge_length_outline_mm",
-                                                                 "grading_distance_mm"):
+                                                                 "grading_distance_mm", "tolerance"):
             continue
         lines.append(line)
         if line.strip() == "[mesh]":

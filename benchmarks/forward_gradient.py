@@ -11,8 +11,9 @@ per scene):
 4. **gradient** at that evaluation: the adjoints (one back-substitution per pose with
    the kept factorisation) and the vector-Jacobian products;
 5. **warm evaluation + gradient** at a design moved 0.1 mm along −∇J, each pose
-   warm-started from the previous equilibrium: what one optimiser step costs when its
-   first trial is accepted;
+   warm-started from the previous equilibrium (since 2026-12-05 first as modified Newton
+   on its kept factorised Hessian, as the optimiser does): what one optimiser step costs
+   when its first trial is accepted;
 6. **optimisation**: ``--iterations`` accepted L-BFGS steps from the scene's layout,
    time per accepted step (line-search trials included), in a process of its own: its
    peak memory is what a multi-start worker needs (the finer-mesh check at the end of a
@@ -103,8 +104,9 @@ def measure(path: Path) -> dict:
     e0 = _timed("evaluation", out, design.evaluate, q0)
     g0 = _timed("gradient", out, design.gradient, e0)
     step = -0.1 * g0 / np.max(np.linalg.norm(g0, axis=1))  # the largest control moves 0.1 mm
-    e0.release()
+    e0.release(keep_elastic=True)  # as the optimiser keeps it: the trial starts on its Hessians
     e1 = _timed("warm_evaluation", out, design.evaluate, q0 + step, warm=e0)
+    e0.release()
     _timed("warm_gradient", out, design.gradient, e1)
     e1.release()
     out["newton_cold"] = int(sum(e0.newton_iterations))

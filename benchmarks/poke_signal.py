@@ -14,7 +14,9 @@ minutes on one core)::
 
     .venv/bin/python benchmarks/poke_signal.py
 
-or one's own: ``... benchmarks/poke_signal.py jobs/poking.toml '[{}, {"elastic": {"edge_length_mm": 2.5}}]'``.
+or one's own: ``... benchmarks/poke_signal.py jobs/poking.toml '[{}, {"elastic": {"edge_length_mm": 2.5}}]'``
+(``{}``: the scene as it is). On poking the 16 gains are also compared with the P2
+Richardson reference (:data:`REFERENCE_PF`).
 Writes ``docs/poke_signal.csv`` (one row per variant and capacitor) with ``--csv``.
 """
 
@@ -41,20 +43,37 @@ from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.fem.simulate import simulate  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 
-#: The hand-set meshes, the tolerance mesh with its zones under the balls, and the
-#: tolerance mesh with the elastic edge refined everywhere (P1) or P2.
+#: The hand-set meshes jobs/poking.toml had until 2026-12-05, the tolerance mesh with its
+#: zones under the balls and the elastic edge refined everywhere (P1) or P2, and the scene
+#: as shipped (the 1 % mesh, P2 refined under the balls and along the held edges, 10 mm).
 VARIANTS = [
     {"label": "hand-set: P1 0.075 mm, 5 mm; elastic 5 mm", "tolerance": False},
     {"label": "hand-set, elastic 1.25 mm", "tolerance": False, "elastic": {"edge_length_mm": 1.25}},
     {"label": "hand-set, far edge 1.25 mm, elastic 1.25 mm", "tolerance": False,
      "mesh": {"edge_length_mm": 1.25, "grading_distance_mm": 0.6}, "elastic": {"edge_length_mm": 1.25}},
-    {"label": "tolerance 1 % (zones R/8 under the balls); elastic 5 mm", "tolerance": True},
-    {"label": "tolerance 1 %; elastic 2.5 mm", "tolerance": True, "elastic": {"edge_length_mm": 2.5}},
-    {"label": "tolerance 1 %; elastic 1.25 mm", "tolerance": True, "elastic": {"edge_length_mm": 1.25}},
-    {"label": "tolerance 1 %; elastic P2 2.5 mm", "tolerance": True, "elastic": {"edge_length_mm": 2.5, "order": 2}},
+    {"label": "tolerance 1 % (zones R/8 under the balls); elastic 5 mm", "tolerance": True,
+     "elastic": {"order": 1, "edge_length_mm": 5.0}},
+    {"label": "tolerance 1 %; elastic 2.5 mm", "tolerance": True, "elastic": {"order": 1, "edge_length_mm": 2.5}},
+    {"label": "tolerance 1 %; elastic 1.25 mm", "tolerance": True, "elastic": {"order": 1, "edge_length_mm": 1.25}},
+    {"label": "tolerance 1 %; elastic P2 2.5 mm", "tolerance": True,
+     "elastic": {"edge_length_mm": 2.5, "order": 2, "refine_pokes": False}},
+    {"label": "the scene as shipped: 1 %, P2 refined for the pokes, 10 mm"},
 ]
 FIELDS = ["variant", "capacitor", "rest_pF", "pressed_gain_pF", "row_neighbour_gain_pF", "wall_s", "tets",
           "elastic_nodes"]
+
+#: The P2 Richardson reference of jobs/poking.toml's gains (docs/electrostatics.md, "The
+#: pose-to-pose signal"), by the plate pair's index xor (poke i on plate j): the pressed
+#: plate (0), its same-row neighbour (1), the other two (2: 0.338–0.340, 3: 0.513–0.514;
+#: the docs' "diagonal" and "column" rows).
+REFERENCE_PF = {0: 4.874, 1: 1.309, 2: 0.339, 3: 0.5135}
+
+
+def reference_errors(gains: np.ndarray) -> dict[int, np.ndarray]:
+    """Relative errors of the 4 × 4 gain matrix ``gains[i, j]`` (poke i, plate j) against
+    :data:`REFERENCE_PF`, per index xor."""
+    i, j = np.indices(gains.shape)
+    return {x: gains[(i ^ j) == x] / ref - 1 for x, ref in REFERENCE_PF.items()}
 
 
 def tolerance_scene(path: Path) -> Path:
@@ -62,6 +81,30 @@ def tolerance_scene(path: Path) -> Path:
     out = ROOT / "out" / f"{path.stem}_tolerance.toml"
     out.parent.mkdir(exist_ok=True)
     out.write_text(tolerance_text(path))
+    return out
+
+
+#: The sizes jobs/poking.toml set by hand until 2026-12-05 (P1 electrostatics, P1 elastic).
+HAND_SET = {"mesh": {"edge_length_mm": 5.0, "edge_length_outline_mm": 0.075, "grading_distance_mm": 2.5,
+                     "elements_per_layer": 1, "order": 1},
+            "elastic": {"order": 1, "edge_length_mm": 5.0}}
+
+
+def hand_set_scene(path: Path) -> Path:
+    """The scene file with its ``[mesh]`` and ``[elastic]`` tables replaced by :data:`HAND_SET`."""
+    lines, table = [], ""
+    for line in path.read_text().splitlines():
+        if line.startswith("["):
+            table = line.strip()
+            if table in ("[mesh]", "[elastic]"):
+                continue
+        if table not in ("[mesh]", "[elastic]"):
+            lines.append(line)
+    for name, values in HAND_SET.items():
+        lines += ["", f"[{name}]"] + [f"{key} = {value!r}" for key, value in values.items()]
+    out = ROOT / "out" / f"{path.stem}_hand_set.toml"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text("\n".join(lines) + "\n")
     return out
 
 
@@ -83,11 +126,12 @@ def main(argv=None):
     args = parser.parse_args(argv)
     petsc()
     path = Path(args.scene)
-    scenes = {False: load_scene(path), True: load_scene(tolerance_scene(path))}
+    # "tolerance": false, the hand-set sizes; true, the 1 % tolerance mesh; left out, the scene as it is
+    scenes = {False: load_scene(hand_set_scene(path)), True: load_scene(tolerance_scene(path)), None: load_scene(path)}
     variants = json.loads(args.variants) if args.variants else VARIANTS
     rows = []
     for i, variant in enumerate(variants):
-        scene = scenes[variant.get("tolerance", False)]
+        scene = scenes[variant.get("tolerance")]
         c, wall, tets, nodes = run(scene, variant)
         gains = c[1:] - c[0]
         pressed = np.diag(gains)
@@ -98,6 +142,12 @@ def main(argv=None):
               f"  rest {np.round(c[0], 4)}\n  pressed gains {np.round(pressed, 4)} (spread "
               f"{100 * np.ptp(pressed) / pressed.mean():.2f} %), mean {pressed.mean():.4f} pF\n"
               f"  row-neighbour gains {np.round(neighbour, 4)}, mean {neighbour.mean():.4f} pF", flush=True)
+        if gains.shape == (4, 4) and path.stem.startswith("poking") and "cross" not in path.stem:
+            errors = reference_errors(gains)
+            worst = max(np.abs(e).max() for e in errors.values())
+            print("  against the P2 reference (pressed / row / xor 2 / xor 3): "
+                  + " / ".join(f"{100 * e.min():+.1f}..{100 * e.max():+.1f} %" for e in errors.values())
+                  + f"; worst {100 * worst:.2f} %", flush=True)
         rows += [dict(variant=label, capacitor=j, rest_pF=c[0, j], pressed_gain_pF=pressed[j],
                       row_neighbour_gain_pF=neighbour[j], wall_s=wall, tets=tets, elastic_nodes=nodes)
                  for j in range(len(pressed))]

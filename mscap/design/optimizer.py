@@ -145,7 +145,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
     q = design.deformer.zeros() if q0 is None else np.array(q0, dtype=float)
     e = design.evaluate(q)
     g = _gradient(design, e)
-    initial = e.detached()
+    initial = e.detached(keep_elastic=True)
     memory = _LBFGS()
     level, iteration, level_iterations, reason = 0, 0, 0, ""
     level_gradient = float(np.linalg.norm(g))
@@ -168,6 +168,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
     def remesh_here(evaluations=1):  # evaluations: the rejected trials that led here, and this one
         nonlocal design, e, g, fresh, step_length
         new, warm = remesh(design, e)
+        e.release()
         # Free the old design's solvers, meshes and skinning weights (and the old
         # evaluation's moved meshes) before the new design's first evaluation, not after:
         # alive beside it they were the whole-start peak (biaxial, k = 6: 944 → 701 MB).
@@ -226,6 +227,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                         g_new = _gradient(design, trial)
                         memory.push((trial.q - e.q).ravel(), (g_new - g).ravel())
                         change = e.J - trial.J
+                        e.release()
                         e, g = trial, g_new
                         iteration += 1
                         level_iterations += 1
@@ -248,6 +250,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                 record(reason)
                 break
             design = design.refined(e.q)
+            e.release()  # another mesh: its equilibria (kept) start the refined one, not its factorisations
             e = design.evaluate(design.deformer.zeros(), warm=e)
             g = _gradient(design, e)
             memory.reset()
@@ -258,10 +261,13 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
             step_length = settings.first_step_mm
             record("cascade")
     except BaseException as exc:  # free the current design's solvers; a non-finite value: say where
+        if e is not None:
+            e.release()
         design.close()
         if isinstance(exc, DesignError):
             raise DesignError(f"iteration {iteration + 1} (level {level}): {exc}") from exc
         raise
+    e.release()
     return OptimizeResult(design, e, initial, tuple(history), iteration, reason, time.perf_counter() - started)
 
 
@@ -283,10 +289,12 @@ def _plateau(values: list[float], J: float, window: int, tolerance: float) -> bo
 
 
 def _gradient(design: Design, e: Evaluation) -> np.ndarray:
-    """dJ/dq at ``e``, then ``e``'s factorisations are released (only its values and
-    displacements are used from here on)."""
+    """dJ/dq at ``e``, then ``e``'s fields are released (only its values and
+    displacements are used from here on) and its elastic factorisations kept: the line
+    search's trials start from them as modified Newton (:meth:`Evaluation.factorisations`;
+    3.4× less CPU per warm evaluation on poking_quick's P2), until ``e`` is left."""
     g = design.gradient(e)
-    e.release()
+    e.release(keep_elastic=True)
     return g
 
 

@@ -87,36 +87,53 @@ class Evaluation:
     def min_l1_pF(self) -> float:
         return min_pairwise_l1(self.capacitance_pF)
 
-    def release(self) -> None:
+    def release(self, keep_elastic: bool = False) -> None:
         """Destroy the kept factorisations (PETSc objects) and drop the electrostatic
         fields and moved vertices now: :meth:`Design.gradient` needs them, nothing else
         does (warm starts and remeshing use the elastic equilibria, which stay). Dropping
         the last reference to a factorisation is not enough — the poking scene kept
         ~34 MB of native memory per evaluation alive that way — and the fields of an
         evaluation the optimiser has moved on from stayed alive beside the next one's
-        (16 poses × 8 MB on the glove at k = 6)."""
+        (16 poses × 8 MB on the glove at k = 6). ``keep_elastic`` keeps the elastic
+        factorisations for the next design's modified-Newton starts
+        (:meth:`factorisations`) until a later ``release()``."""
         if self.sim is None:
             return
-        for result in self.sim.poses:
-            operator = None if result.state is None else result.state.operator
-            if operator is not None:
-                operator.destroy()
-        poses = tuple(replace(r, capacitances=replace(r.capacitances, potentials=None), vertices=None)
-                      for r in self.sim.poses)
-        object.__setattr__(self, "sim", replace(self.sim, poses=poses))
+        poses = []
+        for r in self.sim.poses:
+            state = r.state
+            if state is not None and state.operator is not None and not keep_elastic:
+                state.operator.destroy()
+                state = replace(state, operator=None)
+            poses.append(replace(r, state=state, capacitances=replace(r.capacitances, potentials=None),
+                                 vertices=None))
+        object.__setattr__(self, "sim", replace(self.sim, poses=tuple(poses)))
         object.__setattr__(self, "released", True)
 
-    def detached(self) -> "Evaluation":
+    def detached(self, keep_elastic: bool = False) -> "Evaluation":
         """This evaluation's values (q, J and its parts, C) without its simulation, for
         keeping: the meshes and fields of a design the optimiser has remeshed away from
         would otherwise stay alive with it (the initial evaluation kept a whole
-        electrostatic problem, 60 MB on poking_cross)."""
-        self.release()
+        electrostatic problem, 60 MB on poking_cross). This evaluation itself is released
+        as by ``release(keep_elastic)``."""
+        self.release(keep_elastic)
         return replace(self, sim=None, released=True)
 
     def displacements(self) -> list[np.ndarray | None]:
         """Per pose, the elastic node displacement ``(n_nodes, 3)`` (``None`` if free)."""
         return [None if r.state is None else r.state.nodes - self.sim.elastic.rest for r in self.sim.poses]
+
+    def factorisations(self, problem) -> list | None:
+        """Per pose, this evaluation's factorised Hessian at its equilibrium (kept for the
+        adjoint, or by ``release(keep_elastic=True)``), for modified-Newton starts of a
+        nearby design on the same elastic mesh ``problem``
+        (:func:`~mscap.fem.elastic.newton.solve_pose`'s ``stale``); ``None`` on another
+        mesh, and ``None`` per pose once destroyed."""
+        mine = None if self.sim is None else self.sim.elastic
+        if mine is None or problem is None or mine.nodes.shape != problem.nodes.shape or not (
+                mine.nodes is problem.nodes or np.array_equal(mine.nodes, problem.nodes)):
+            return None
+        return [None if r.state is None else r.state.operator for r in self.sim.poses]
 
     def starts_at(self, rest: np.ndarray) -> list[np.ndarray | None]:
         """Per pose, a Newton start at new rest positions ``rest`` of the same elastic mesh:
@@ -184,11 +201,12 @@ class Design:
         outlines = self.deformer.outlines(q)
         outline_terms = self.objective.outline_terms(outlines, check=True)
         sim = moved(self.base, *self.rest_points(q))
-        starts = warm
+        starts, stale = warm, None
         if isinstance(warm, Evaluation):
             starts = warm.starts_at(sim.elastic.rest) if sim.elastic is not None else warm.displacements()
+            stale = warm.factorisations(sim.elastic)
         solver, operator = self._solvers()
-        results = solve_poses(sim, self.scene, solver, operator, starts, keep_factorisation=True)
+        results = solve_poses(sim, self.scene, solver, operator, starts, keep_factorisation=True, stale=stale)
         for result in results:
             if not np.isfinite(result.capacitance_pF).all():
                 raise DesignError(f"pose {result.name!r}: capacitances {result.capacitance_pF} are not finite")

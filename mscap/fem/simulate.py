@@ -170,18 +170,20 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
 
 def equilibrium(problem: ElasticProblem, pose, settings: NewtonSettings, operator: Operator | None = None,
                 start: np.ndarray | None = None, keep_factorisation: bool = False,
-                progress: Callable[[str], None] | None = None) -> ElasticState:
+                progress: Callable[[str], None] | None = None, stale: Operator | None = None) -> ElasticState:
     """One pose's elastic equilibrium on ``problem``.
 
     With ``start`` (a displacement ``(n_nodes, 3)``, e.g. the pose's at nearby rest
-    positions) Newton starts from ``rest + start`` in one load step; when that fails, or
-    without ``start``, it follows the pose's full load path."""
+    positions) Newton starts from ``rest + start`` in one load step, first as modified
+    Newton on ``stale`` when given (the pose's factorised Hessian at that nearby design,
+    :func:`~mscap.fem.elastic.newton.solve_pose`); when that fails, or without ``start``,
+    it follows the pose's full load path."""
     loading = loading_for(problem, pose)
     if start is not None:
         warm = problem.rest + start
         try:
             return solve_pose(problem, replace(loading, load_steps=1, guess=lambda x, t: warm), settings,
-                              operator, keep_factorisation=keep_factorisation, progress=progress)
+                              operator, keep_factorisation=keep_factorisation, progress=progress, stale=stale)
         except ElasticError as exc:
             log.warning("pose %s: warm start failed (%s); solving along the full load path", pose.name, exc)
     return solve_pose(problem, loading, settings, operator, keep_factorisation=keep_factorisation,
@@ -190,25 +192,28 @@ def equilibrium(problem: ElasticProblem, pose, settings: NewtonSettings, operato
 
 def solve_poses(sim: Simulation, scene: Scene, solver: LinearSolver, operator: Operator | None,
                 starts: Sequence[np.ndarray | None] | None = None, keep_factorisation: bool = False,
-                keep_fields: bool = True, progress: Callable[[str], None] | None = None
-                ) -> tuple[PoseResult, ...]:
+                keep_fields: bool = True, progress: Callable[[str], None] | None = None,
+                stale: Sequence[Operator | None] | None = None) -> tuple[PoseResult, ...]:
     """The forward loop: every pose of ``scene`` on ``sim``'s meshes (its own poses are
-    ignored): :func:`equilibria` (warm from ``starts[i]`` when given), then
-    :func:`capacitances`.
+    ignored): :func:`equilibria` (warm from ``starts[i]`` when given, on ``stale[i]`` too),
+    then :func:`capacitances`.
 
     ``solver`` (electrostatic) and ``operator`` (elastic, ``None`` if every pose is free)
     are reused across poses; the caller owns and destroys them."""
-    states, elastic_s = equilibria(sim, scene, operator, starts, keep_factorisation, progress)
+    states, elastic_s = equilibria(sim, scene, operator, starts, keep_factorisation, progress, stale)
     return capacitances(sim, scene, states, elastic_s, solver, keep_fields, progress)
 
 
 def equilibria(sim: Simulation, scene: Scene, operator: Operator | None,
                starts: Sequence[np.ndarray | None] | None = None, keep_factorisation: bool = False,
-               progress: Callable[[str], None] | None = None) -> tuple[list, list]:
-    """Every pose's elastic equilibrium (``None`` for a free pose) and its seconds. On a
-    failure the factorisations kept so far are freed before the error propagates."""
+               progress: Callable[[str], None] | None = None,
+               stale: Sequence[Operator | None] | None = None) -> tuple[list, list]:
+    """Every pose's elastic equilibrium (``None`` for a free pose) and its seconds, warm
+    from ``starts[i]`` (on ``stale[i]``, :func:`equilibrium`) when given. On a failure the
+    factorisations kept so far are freed before the error propagates."""
     say = progress or (lambda message: None)
     starts = starts if starts is not None else [None] * len(scene.poses)
+    stale = stale if stale is not None else [None] * len(scene.poses)
     states, seconds = [], []
     try:
         for i, pose in enumerate(scene.poses):
@@ -216,7 +221,7 @@ def equilibria(sim: Simulation, scene: Scene, operator: Operator | None,
             state = None
             if pose.kind != "free":
                 state = equilibrium(sim.elastic, pose, scene.elastic, operator, starts[i],
-                                    keep_factorisation=keep_factorisation, progress=progress)
+                                    keep_factorisation=keep_factorisation, progress=progress, stale=stale[i])
                 say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: equilibrium in {state.load_steps} load steps, "
                     f"{state.newton_iterations} Newton iterations ({time.perf_counter() - t0:.2f} s)")
             states.append(state)

@@ -276,12 +276,17 @@ def _elastic_for_signal(mesh: MeshSettings, elastic: ElasticSettings, poses, giv
     """The elastic order and edge a poked scene's ``signal_tolerance`` asks for; an order or
     edge the scene's ``[elastic]`` gives wins (an order restricts the choice to its rungs).
     Without a signal tolerance a scene with pokes or glued poses that gives no order gets
-    P2 (:data:`mscap.scene.sizing.BENDING_ELEMENT_ORDER`)."""
+    P2 (:data:`mscap.scene.sizing.BENDING_ELEMENT_ORDER`), and a poke-only scene's refined
+    P2 mesh the far edge :data:`~mscap.scene.sizing.POKE_FAR_EDGE_MM`."""
     if mesh.signal_tolerance is None:
         if "order" not in given and any(getattr(p, "kind", None) in ("poke", "glue") for p in poses):
             log.info("elastic: P2 for the poses that bend the sheet (P1 tets lock in the thin stack; "
                      "docs/elastic.md)")
-            return replace(elastic, order=sizing.BENDING_ELEMENT_ORDER)
+            elastic = replace(elastic, order=sizing.BENDING_ELEMENT_ORDER)
+        far = sizing.poke_far_edge(elastic, mesh, poses, given)
+        if far is not None:
+            log.info("elastic: P2 refined under the balls and along the held edges, %g mm elsewhere", far)
+            elastic = replace(elastic, edge_length_mm=far)
         return elastic
     chosen = sizing.elastic_for_signal(mesh.signal_tolerance, poses, given.get("order"))
     if chosen is None:

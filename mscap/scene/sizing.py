@@ -40,7 +40,8 @@ __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_T
            "predicted_errors", "rung_of", "settings_for_tolerance", "sized", "with_layout", "poke_zones",
            "no_finer_than", "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "P2_ZONE_EDGE", "P2_ZONE_RADII",
            "HELD_STRIP_EDGE_MM", "HELD_STRIP_MM", "refines_pokes", "p2_poke_refinement", "bend_radius",
-           "curvature_edge", "ElasticRung", "POKE_ELASTIC_LADDER", "BENDING_ELEMENT_ORDER", "elastic_for_signal", "COUPLING_RUNG", "for_couplings"]
+           "curvature_edge", "ElasticRung", "POKE_ELASTIC_LADDER", "BENDING_ELEMENT_ORDER", "elastic_for_signal",
+           "COUPLING_RUNG", "POKE_FAR_EDGE_MM", "poke_far_edge", "for_couplings"]
 
 log = logging.getLogger(__name__)
 
@@ -330,10 +331,35 @@ BENDING_ELEMENT_ORDER = 2
 #: uniform P2 reads +9.3 % at 5 mm and +4.3 % at 2.5 mm; this +2.7 % (ν = 0.47; +0.6 / +2.4 %
 #: at 0.30 / 0.49 against P2 at 1.25 mm) at 0.58× the wall of 2.5 mm; on jobs/poking.toml
 #: +3.7 % → +1.9 % at 0.32×. Strips of 2.5 mm and a zone of 1.5 R read +3.5 % / +2.2 %.
-P2_ZONE_EDGE = 0.35
+#: With the poke-only far edge :data:`POKE_FAR_EDGE_MM` a zone edge of 0.35 R read issue
+#: 44's ball +2.9 %, 0.30 R +2.6 % (one process, CPU 0.47× uniform P2 at 2.5 mm; at a 5 mm
+#: far edge 0.30 R reads +2.4 %): 0.30 R, for a margin under 3 %.
+P2_ZONE_EDGE = 0.30
 P2_ZONE_RADII = 1.0
 HELD_STRIP_EDGE_MM = 2.0
 HELD_STRIP_MM = 1.0
+
+
+#: The far edge (mm) of a refined P2 elastic mesh (:func:`p2_poke_refinement`) in a scene
+#: whose every loaded pose is a poke and that gives no ``[elastic] edge_length_mm``: once
+#: the zones under the balls and the strips along the held edges are in, the far edge
+#: moves a poke's gain by 0.2 points or less and sets the cost (benchmarks/poke_zone_p2.py,
+#: docs/elastic.md). At 10 mm instead of 5: issue 44's 5 mm ball +2.7 % at 0.36× the wall
+#: of uniform P2 at 2.5 mm (0.58× at 5 mm); jobs/poking.toml's 16 gains within 1.8 % of the
+#: P2 Richardson reference (2.0 % at 5 mm) in 40 s against 69 s for its five poses. Scenes
+#: that stretch or glue the sheet keep the 5 mm edge: their strain is not where a poke's is.
+POKE_FAR_EDGE_MM = 10.0
+
+
+def poke_far_edge(elastic, mesh: MeshSettings, poses, given: dict) -> float | None:
+    """:data:`POKE_FAR_EDGE_MM` when the elastic mesh is a refined P2 mesh of its own (as
+    :func:`refines_pokes`) for a scene whose loaded poses are all pokes and whose
+    ``[elastic]`` table ``given`` sets no edge; else ``None`` (the edge stays)."""
+    loaded = [p for p in poses if getattr(p, "kind", None) != "free"]
+    if "edge_length_mm" in given or not loaded or not all(isinstance(p, PokePose) for p in loaded):
+        return None
+    refined = elastic.order == 2 and elastic.mesh == "own" and elastic.refine_pokes and bool(mesh.zones)
+    return POKE_FAR_EDGE_MM if refined else None
 
 
 def refines_pokes(scene: Scene) -> bool:

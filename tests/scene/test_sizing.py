@@ -268,3 +268,39 @@ def test_a_signal_tolerance_chooses_the_elastic_order_and_edge_of_a_poked_scene(
     assert both.mesh.tolerance == 0.01 and both.mesh.signal_tolerance == 0.02 and both.elastic.order == 2
     with pytest.raises(SceneError, match="signal_tolerance"):
         load({**hand, "signal_tolerance": 1.5})
+
+
+def test_a_poke_only_scene_gets_the_coarse_far_edge_only_where_its_p2_mesh_is_refined(tmp_path):
+    """sizing.POKE_FAR_EDGE_MM: a scene whose loaded poses are all pokes, with a tolerance
+    mesh (zones under the balls) and no elastic edge, gets a 10 mm far edge (refined
+    under the ball and along the held edges, its error is set there: issue 44's ball
+    +2.6 % at 10 mm, +2.4 % at 5 mm, docs/elastic.md); an edge the scene gives wins; a
+    hand-set mesh (no zones, so no refinement), a P1 or unrefined elastic mesh and a scene
+    that also stretches keep the 5 mm default."""
+    from tests.scenes import poke_scene_dict
+
+    def load(mesh=None, elastic=None, stretch=False):
+        data = poke_scene_dict()
+        data.pop("mesh")
+        data.pop("elastic")
+        if mesh is not None:
+            data["mesh"] = mesh
+        if elastic is not None:
+            data["elastic"] = elastic
+        if stretch:
+            data["poses"].append({"name": "pull", "kind": "stretch", "mode": "uniaxial", "direction": "x",
+                                  "stretch": 1.2})
+        path = tmp_path / "poke.toml"
+        path.write_text(to_toml(data))
+        return load_scene(path).elastic
+
+    assert sizing.POKE_FAR_EDGE_MM == 10.0
+    default = load()
+    assert (default.order, default.edge_length_mm, default.refine_pokes) == (2, 10.0, True)
+    assert load(elastic={"order": 2}).edge_length_mm == 10.0
+    assert load(elastic={"edge_length_mm": 4.0}).edge_length_mm == 4.0
+    hand = {"edge_length_mm": 3.0, "edge_length_outline_mm": 0.5, "grading_distance_mm": 2.0}
+    assert load(mesh=hand).edge_length_mm == 5.0
+    assert load(elastic={"order": 1}).edge_length_mm == 5.0
+    assert load(elastic={"refine_pokes": False}).edge_length_mm == 5.0
+    assert load(stretch=True).edge_length_mm == 5.0
