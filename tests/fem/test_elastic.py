@@ -322,6 +322,37 @@ def test_roller_stretch_of_a_full_plate_has_the_closed_form(full_plate, mode, st
     assert ratio == pytest.approx(expected, rel=1e-9)
 
 
+@pytest.mark.parametrize("order", [1, 2])
+def test_a_warm_start_on_a_stale_hessian_reaches_the_newton_equilibrium(full_plate, order):
+    """newton.solve_pose with ``stale``: warm from a clamped 1.5 stretch's equilibrium to
+    1.52, modified Newton on the 1.5 equilibrium's factorised Hessian reaches the state
+    plain Newton reaches from the same start (nodes to 1e-9 mm) with no factorising
+    iteration; from the rest state's Hessian (a far one: the 1.52 stretch is not near it)
+    it stops after a few iterations and Newton finishes at the same equilibrium."""
+    problem = full_plate["elastic"][order]
+    settings = NewtonSettings(tolerance=1e-10)
+
+    def pose(stretch):
+        return StretchPose("s", "uniaxial", (stretch, 1.0), "clamp", 0, 4)
+
+    near = solve_pose(problem, loading_for(problem, pose(1.5)), settings, keep_factorisation=True)
+    rest = solve_pose(problem, loading_for(problem, pose(1.0 + 1e-9)), settings, keep_factorisation=True)
+    try:
+        target = replace(loading_for(problem, pose(1.52)), load_steps=1, guess=lambda x, t: near.nodes)
+        plain = solve_pose(problem, target, settings)
+        stale = solve_pose(problem, target, settings, stale=near.operator)
+        far = solve_pose(problem, target, settings, stale=rest.operator)
+    finally:
+        near.operator.destroy()
+        rest.operator.destroy()
+    assert plain.newton_iterations >= 3 and plain.stale_iterations == 0
+    assert stale.newton_iterations == 0 and 0 < stale.stale_iterations <= 30
+    assert 0 < far.newton_iterations and 0 < far.stale_iterations < 30
+    for state in (stale, far):
+        assert state.residual <= 1e-10
+        assert np.abs(state.nodes - plain.nodes).max() < 1e-9
+
+
 def test_clamped_uniaxial_stretch_is_not_homogeneous(full_plate):
     # Clamps stop the gripped edges from contracting, so the sheet necks between them:
     # no longer the homogeneous answer C/C0 = λ (measured 1.9536 for λ = 2).

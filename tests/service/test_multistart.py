@@ -100,14 +100,15 @@ def test_three_ranks_write_a_complete_file(three_ranks, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split()[:3] == ["run", "status", "its"] and len(lines) == 5 and "%" in lines[1]
     # Every run carries its worker's CPU seconds and peak memory (mscap.service.usage): a
-    # worker computes, so its CPU is most of its wall on a core of its own, and at most
-    # the machine's cores' worth; its peak holds the mesh and the solvers, far below 1 GB.
+    # worker's CPU is positive and at most the machine's cores' worth of its wall (how much
+    # of its wall it gets depends on what else runs: 8 % beside four busy processes on 2
+    # cores); its peak holds the mesh and the solvers, far below 1 GB.
     cost = table["cost"]
     assert cost["runs"] == cost["runs_measured"] == 4 and cost["check_cpu_s"] > 0
     with read_store(out) as store:
         runs = [read_run(store, rid) for rid in finished_ids(store)]
     for r in runs:
-        assert 0.1 * r.wall_s < r.cpu_s < (os.cpu_count() or 1) * r.wall_s + 0.5, r.id
+        assert 0 < r.cpu_s < (os.cpu_count() or 1) * r.wall_s + 0.5, r.id
         assert 30 < r.peak_rss_mb < 1000, r.id
         assert r.checked == math.isfinite(r.error_estimate_cpu_s)
     assert cost["peak_rss_mb"] == max(r.peak_rss_mb for r in runs)
