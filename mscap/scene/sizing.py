@@ -343,10 +343,10 @@ HELD_STRIP_MM = 1.0
 #: The far edge (mm) of a refined P2 elastic mesh (:func:`p2_poke_refinement`) in a scene
 #: whose every loaded pose is a poke and that gives no ``[elastic] edge_length_mm``: once
 #: the zones under the balls and the strips along the held edges are in, the far edge
-#: moves a poke's gain by 0.2 points or less and sets the cost (benchmarks/poke_zone_p2.py,
-#: docs/elastic.md). At 10 mm instead of 5: issue 44's 5 mm ball +2.7 % at 0.36× the wall
-#: of uniform P2 at 2.5 mm (0.58× at 5 mm); jobs/poking.toml's 16 gains within 1.8 % of the
-#: P2 Richardson reference (2.0 % at 5 mm) in 40 s against 69 s for its five poses. Scenes
+#: moves a poke's gain by a few tenths of a point and sets the cost (benchmarks/poke_zone_p2.py,
+#: docs/elastic.md). At 10 mm instead of 5 (zone edge 0.30 R): issue 44's 5 mm ball +2.58 %
+#: at 0.47× the CPU of uniform P2 at 2.5 mm (+2.42 % at 0.57×); jobs/poking.toml's 16 gains
+#: within 2.0 % of the P2 Richardson reference (the hand-set P1 meshes: 17.6 %). Scenes
 #: that stretch or glue the sheet keep the 5 mm edge: their strain is not where a poke's is.
 POKE_FAR_EDGE_MM = 10.0
 
@@ -358,8 +358,13 @@ def poke_far_edge(elastic, mesh: MeshSettings, poses, given: dict) -> float | No
     loaded = [p for p in poses if getattr(p, "kind", None) != "free"]
     if "edge_length_mm" in given or not loaded or not all(isinstance(p, PokePose) for p in loaded):
         return None
-    refined = elastic.order == 2 and elastic.mesh == "own" and elastic.refine_pokes and bool(mesh.zones)
-    return POKE_FAR_EDGE_MM if refined else None
+    return POKE_FAR_EDGE_MM if _refined(elastic, mesh) else None
+
+
+def _refined(elastic, mesh: MeshSettings) -> bool:
+    """Whether a P2 elastic mesh of its own with ``refine_pokes`` has the electrostatic
+    zones under the balls beside it (:func:`refines_pokes`)."""
+    return elastic.order == 2 and elastic.mesh == "own" and elastic.refine_pokes and bool(mesh.zones)
 
 
 def refines_pokes(scene: Scene) -> bool:
@@ -370,8 +375,7 @@ def refines_pokes(scene: Scene) -> bool:
     jobs/quick.toml's hand-set mesh has no zones, and the refined elastic mesh put its
     initial layout's min L1 at 0.632 pF against 0.600 uniform, its finer-mesh check
     reading 0.573 / 0.583 pF (docs/elastic.md)."""
-    elastic = scene.elastic
-    return elastic.order == 2 and elastic.mesh == "own" and elastic.refine_pokes and bool(scene.mesh.zones)
+    return _refined(scene.elastic, scene.mesh)
 
 
 def p2_poke_refinement(poses, sheet_outline_mm: np.ndarray, far_mm: float):
