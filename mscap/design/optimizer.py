@@ -224,10 +224,12 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                         # Every trial that lowered J raised its error bound more: the rest is unresolved.
                         converged, reason = True, "resolved" if unresolved else "stalled"
                     else:
+                        # Free the current point's factorisations before the trial's gradient makes
+                        # its own: one set alive, not two (poking_quick's P2 worker: see _gradient).
+                        e.release()
                         g_new = _gradient(design, trial)
                         memory.push((trial.q - e.q).ravel(), (g_new - g).ravel())
                         change = e.J - trial.J
-                        e.release()
                         e, g = trial, g_new
                         iteration += 1
                         level_iterations += 1
@@ -290,9 +292,11 @@ def _plateau(values: list[float], J: float, window: int, tolerance: float) -> bo
 
 def _gradient(design: Design, e: Evaluation) -> np.ndarray:
     """dJ/dq at ``e``, then ``e``'s fields are released (only its values and
-    displacements are used from here on) and its elastic factorisations kept: the line
-    search's trials start from them as modified Newton (:meth:`Evaluation.factorisations`;
-    3.4× less CPU per warm evaluation on poking_quick's P2), until ``e`` is left."""
+    displacements are used from here on) and the elastic factorisations its gradient made
+    are kept: the line search's trials start from them as modified Newton
+    (:meth:`Evaluation.factorisations`; 3.4× less CPU per warm evaluation on poking_quick's
+    P2), until ``e`` is left. Trials factorise nothing to keep (an accepted one's gradient
+    does, after ``e`` is released), so one set of factorisations is alive at a time."""
     g = design.gradient(e)
     e.release(keep_elastic=True)
     return g

@@ -44,7 +44,7 @@ from mscap.errors import DesignError
 from mscap.fem.adjoint import moved, pose_rest_gradient
 from mscap.fem.elastic.problem import carried_displacement
 from mscap.fem.petsc import LinearSolver, Operator
-from mscap.fem.simulate import Simulation, elastic_setup, simulate, solve_poses
+from mscap.fem.simulate import Simulation, elastic_setup, factorised, simulate, solve_poses
 from mscap.mesh.transfer import p1_matrix
 from mscap.scene import Scene
 from mscap.scene.loader import check_designable
@@ -61,9 +61,10 @@ class Evaluation:
     ``J = −d + w_b · barrier + w_s · smoothing`` (+ w_b · the plate-area barrier); ``d``
     (:func:`mscap.design.objective.capacitance_term`: pF², noise units, or −mm for the read-back
     bound), ``barrier`` and ``smoothing`` (mm²) unweighted; ``capacitance_pF``
-    ``(n_poses, k)`` over the design poses; ``sim`` holds the moved meshes and each
-    pose's equilibrium with its kept factorisation (for :meth:`Design.gradient`, until
-    :meth:`release`; ``None`` once :meth:`detached`); ``newton_iterations`` per pose;
+    ``(n_poses, k)`` over the design poses; ``sim`` holds the moved meshes, the fields and
+    each pose's equilibrium (for :meth:`Design.gradient`, which factorises each pose's
+    Hessian there and keeps it, until :meth:`release`; ``None`` once :meth:`detached`);
+    ``newton_iterations`` per pose;
     ``error_J`` and ``margin_error_pF``, the estimated discretisation error of J and of
     :attr:`min_l1_pF` (:mod:`mscap.design.resolution`); ``dJ_dC``, ∂J/∂C ``(n_poses, k)``,
     which :meth:`Design.gradient` starts from.
@@ -118,6 +119,17 @@ class Evaluation:
         as by ``release(keep_elastic)``."""
         self.release(keep_elastic)
         return replace(self, sim=None, released=True)
+
+    def factorise(self, i: int, scene: Scene) -> None:
+        """Factorise pose ``i``'s exact Hessian at its equilibrium, unless done
+        (:func:`~mscap.fem.simulate.factorised`): the adjoint's, kept until :meth:`release`."""
+        result = self.sim.poses[i]
+        if result.state is None or result.state.operator is not None:
+            return
+        state = factorised(self.sim.elastic, scene.poses[i], scene.elastic, result.state)
+        poses = list(self.sim.poses)
+        poses[i] = replace(result, state=state)
+        object.__setattr__(self, "sim", replace(self.sim, poses=tuple(poses)))
 
     def displacements(self) -> list[np.ndarray | None]:
         """Per pose, the elastic node displacement ``(n_nodes, 3)`` (``None`` if free)."""
@@ -206,7 +218,9 @@ class Design:
             starts = warm.starts_at(sim.elastic.rest) if sim.elastic is not None else warm.displacements()
             stale = warm.factorisations(sim.elastic)
         solver, operator = self._solvers()
-        results = solve_poses(sim, self.scene, solver, operator, starts, keep_factorisation=True, stale=stale)
+        # No factorisation is kept here: the gradient factorises each pose's Hessian when asked
+        # (Evaluation.factorise), so a rejected trial costs none and holds no memory.
+        results = solve_poses(sim, self.scene, solver, operator, starts, stale=stale)
         for result in results:
             if not np.isfinite(result.capacitance_pF).all():
                 raise DesignError(f"pose {result.name!r}: capacitances {result.capacitance_pF} are not finite")
@@ -233,6 +247,7 @@ class Design:
         g_fine = np.zeros_like(e.sim.mesh.points)
         g_elastic = None if e.sim.elastic is None else np.zeros((e.sim.elastic.n_vertices, 3))
         for i in range(len(self.scene.poses)):
+            e.factorise(i, self.scene)
             part = pose_rest_gradient(e.sim, i, dJ_dC[i], self.scene)
             g_fine += part.fine
             if g_elastic is not None:

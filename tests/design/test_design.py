@@ -188,6 +188,19 @@ def test_a_released_evaluation_keeps_only_what_warm_starts_need(design):
     again.release()
 
 
+def test_an_evaluation_factorises_only_for_its_gradient(design):
+    """Design.evaluate keeps no factorisation, so a rejected line-search trial costs none and
+    holds no memory; Design.gradient factorises each loaded pose's Hessian at its
+    equilibrium and keeps it (the next trials' modified-Newton starts) until release."""
+    name, d = design
+    e = d.evaluate(np.full((d.n_controls, 2), 0.02))
+    assert all(r.state is None or r.state.operator is None for r in e.sim.poses), name
+    d.gradient(e)
+    assert all(r.state is None or r.state.operator is not None for r in e.sim.poses), name
+    e.release()
+    assert all(r.state is None or r.state.operator is None for r in e.sim.poses), name
+
+
 def test_a_warm_start_on_the_previous_factorisation_reaches_the_same_equilibria(design):
     """An evaluation released with ``keep_elastic`` (the optimiser's current point) keeps
     its elastic factorisations; a nearby trial warm from it starts as modified Newton on

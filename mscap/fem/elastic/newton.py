@@ -50,7 +50,7 @@ from mscap.fem.petsc import Operator
 from mscap.fem.profile import phase, timed
 from mscap.scene.settings import HESSIAN_MODES, ElasticSettings
 
-__all__ = ["Loading", "NewtonSettings", "ElasticState", "solve_pose", "HESSIAN_MODES"]
+__all__ = ["Loading", "NewtonSettings", "ElasticState", "solve_pose", "factorise_equilibrium", "HESSIAN_MODES"]
 
 log = logging.getLogger(__name__)
 
@@ -407,6 +407,25 @@ def solve_pose(problem: ElasticProblem, loading: Loading, settings: NewtonSettin
             run.op.destroy()
 
 
+def factorise_equilibrium(problem: ElasticProblem, loading: Loading, settings: NewtonSettings, x: np.ndarray,
+                          hessian: np.ndarray | None = None) -> Operator:
+    """The exact Hessian at ``x``, an equilibrium of ``loading`` at full load, factorised
+    in a new operator (options prefix ``adjoint_``; the caller destroys it): what the
+    adjoint solves with, and what a nearby design's modified Newton starts on (``stale``).
+    ``hessian``: its values, when already assembled at ``x`` (read only)."""
+    op = Operator(problem, "adjoint_")
+    try:
+        keeper = _Pose(problem, loading, settings, op)
+        keeper.ball = loading.ball(1.0) if loading.ball else None
+        if hessian is None:  # not kept (projected mode, or asked for later): assemble at x
+            _, _, hessian, _ = keeper.gradient_and_hessian(x, hessian=True, project=False)
+        keeper.factorise(hessian.copy())
+    except BaseException:
+        op.destroy()
+        raise
+    return op
+
+
 def _follow_load_path(problem: ElasticProblem, loading: Loading, settings: NewtonSettings, run: "_Pose",
                       keep_factorisation: bool, progress: Callable[[str], None] | None) -> ElasticState:
     """:func:`solve_pose`'s load stepping, on ``run``'s operator."""
@@ -456,19 +475,7 @@ def _follow_load_path(problem: ElasticProblem, loading: Loading, settings: Newto
                      f"residual {residual:.2e}")
     energy = run.energy(x)
     _, min_j = total_energy(problem, x)
-    op = None
-    if keep_factorisation:
-        op = Operator(problem, "adjoint_")
-        try:
-            keeper = _Pose(problem, loading, settings, op)
-            keeper.ball = run.ball
-            h = run.final_hessian
-            if h is None:  # projected mode: the adjoint needs the exact Hessian
-                _, _, h, _ = keeper.gradient_and_hessian(x, hessian=True, project=False)
-            keeper.factorise(h.copy())
-        except BaseException:
-            op.destroy()
-            raise
+    op = factorise_equilibrium(problem, loading, settings, x, run.final_hessian) if keep_factorisation else None
     gap = float(run.ball.distances(x).min()) if run.ball is not None else None
     state = ElasticState(loading.pose, x, steps, run.iterations, cuts, residual, min_j, energy, gap,
                          run.projected, dict(run.times), op, run.stale_iterations)
