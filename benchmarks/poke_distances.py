@@ -38,6 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks._common import table_head  # noqa: E402
 from benchmarks.poke_signal import hand_set_scene  # noqa: E402
 from mscap.design.history import pairwise_l1  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
@@ -102,8 +103,9 @@ def main(argv=None) -> int:
         chosen = load_scene(hand_set_scene(path)) if variant.get("hand_set") else scene
         c, wall, nodes = capacitances(chosen, variant)
         rows.append((variant.get("label", json.dumps(variant)), c, wall, nodes))
-    print("\n| elastic | elastic nodes | wall | worst distance error | smallest distance (error) | "
-          "against P2 2.5 mm: worst / smallest |\n|---|---|---|---|---|---|")
+    print()
+    print("\n".join(table_head("| elastic | elastic nodes | wall | worst distance error | smallest distance "
+                                "(error) | against P2 2.5 mm: worst / smallest |")))
     for label, c, wall, nodes in rows:
         worst, metric = errors(c, reference)
         finest = errors(c, tables[-1])
