@@ -19,6 +19,8 @@ Candidates, each on the design grid (what the optimiser sees), per design:
   nearer the other's (Φ(−√D/2), D the pair's squared distance in noise units, the
   dissimilarity of :class:`ProtocolDissimilarity`) times the pair's RMS per-vertex distance;
   the root mean square over the grid of each pose's expected confusion;
+- ``bound_prior/100``, ``bound_prior*10``, ``bound_prior*100``: the bound with its uniform
+  prior's precision scaled;
 - ``bound_full``: the bound on the whole training grid instead of the design sub-grid;
 - ``bound_mean``: the mean of the bound's per-pose values instead of their soft maximum;
 - ``noise_grid``: the RMS over the grid of the per-vertex RMS error the read-out noise
@@ -58,7 +60,7 @@ from mscap.calibration.service import Candidate, read_cache, targets  # noqa: E4
 from mscap.design.readback import ReconstructionBound, design_scene, difference_variance, reading_variance  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 
-CANDIDATES = ("bound", "bound_full", "bound_mean", "loo", "confusion", "bound+loo", "bound+confusion", "loo_training",
+CANDIDATES = ("bound", "bound_prior/100", "bound_prior*10", "bound_prior*100", "bound_full", "bound_mean", "loo", "confusion", "bound+loo", "bound+confusion", "loo_training",
               "noise_training", "noise_grid", "bound+noise_grid")
 
 
@@ -168,6 +170,8 @@ def score_run(path: Path) -> list[dict]:
     counts = [len(np.unique(values[:, i])) for i in range(values.shape[1])]
     full = design_scene(replace(original, optimizer=replace(original.optimizer, family_grid=counts)))
     full_bound = ReconstructionBound.of(full)
+    priors = {name: ReconstructionBound(replace(scene.design_family, prior=scene.design_family.prior * f), bound.tau_mm)
+              for name, f in (("bound_prior/100", 0.01), ("bound_prior*10", 10.0), ("bound_prior*100", 100.0))}
     rows = []
     try:
         for label, error, stored_bound in zip(labels, errors, stored):
@@ -179,6 +183,7 @@ def score_run(path: Path) -> list[dict]:
             c_grid, y_grid = data["training"][index], y_train[index]
             value = {"bound": bound.value_and_gradient(c_rows)[0],
                      "bound_mean": float(bound.per_pose_mm(c_rows).mean()),
+                     **{name: b.value_and_gradient(c_rows)[0] for name, b in priors.items()},
                      "bound_full": full_bound.value_and_gradient(design_rows(full, data["training"], reference)[0])[0],
                      "noise_training": map_noise(scene, data["training"], y_train, dim, reference),
                      "loo": leave_one_out(scene, c_grid, y_grid, dim, reference),
