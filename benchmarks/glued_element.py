@@ -27,21 +27,21 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import table_head  # noqa: E402
-from benchmarks.scene_accuracy import load_levels  # noqa: E402
+from benchmarks.scene_accuracy import VARIANT_FACTORS, Level, _key, load_levels  # noqa: E402
 from mscap.design.history import pairwise_l1  # noqa: E402
 
 SCENES = ("pneumatic", "joystick", "wrist", "glove")
 
 
-def compare(levels: dict, scene: str, factor: str) -> dict | None:
+def compare(levels: dict, scene: str, factor: float) -> dict | None:
     """P1 against P2 elasticity (P1 electrostatics) at one edge factor, or ``None`` if
     either level is missing."""
-    p1, p2 = levels.get(f"{scene} {factor} 1 1"), levels.get(f"{scene} {factor} 1 2")
+    p1, p2 = (levels.get(_key(scene, Level(factor, 1, order))) for order in (1, 2))
     if p1 is None or p2 is None:
         return None
     d1, d2 = (pairwise_l1(np.array(level["capacitance_pF"])) for level in (p1, p2))
     signal = np.abs(d1 - d2) / d2
-    return {"scene": scene, "factor": float(factor), "signal_max": float(signal.max()),
+    return {"scene": scene, "factor": factor, "signal_max": float(signal.max()),
             "signal_median": float(np.median(signal)), "metric": float(d1.min() / d2.min() - 1),
             "elastic_tets": p1["elastic_tets"], "wall_p1_s": p1["wall_s"], "wall_p2_s": p2["wall_s"]}
 
@@ -52,7 +52,8 @@ def main(argv=None) -> int:
                         help="levels stored by benchmarks/scene_accuracy.py")
     args = parser.parse_args(argv)
     levels = load_levels(Path(args.levels))
-    rows = [row for scene in SCENES for factor in ("1", "1.41421") if (row := compare(levels, scene, factor))]
+    rows = [row for scene in SCENES for factor in sorted(VARIANT_FACTORS)
+            if (row := compare(levels, scene, factor))]
     if not rows:
         print(f"{args.levels}: no level has both elastic orders; run benchmarks/scene_accuracy.py", file=sys.stderr)
         return 1

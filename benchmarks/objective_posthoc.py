@@ -81,6 +81,15 @@ def features_of(c: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
     return c if reference is None else c / reference
 
 
+def calibration_map(cal, f: np.ndarray, y: np.ndarray, reference: np.ndarray | None):
+    """The calibration's map fitted on features ``f`` and targets ``y`` as ``mscap calibrate``
+    fits it (its kernel, smoothing and, when whitened, each feature's noise at their mean)."""
+    noise_std = None
+    if cal.features == "whitened":
+        noise_std = np.sqrt(reading_variance(f.mean(axis=0), reference, cal.noise)[0])
+    return fit(f, y, cal.kernel, cal.smoothing, noise_std, cal.min_spread)
+
+
 def leave_one_out(scene, c_train: np.ndarray, y: np.ndarray, dim: int, reference: np.ndarray | None) -> float:
     """RMS over the poses of the mean per-vertex error of each pose read back (clean) by the
     calibration's map fitted on the others."""
@@ -89,11 +98,8 @@ def leave_one_out(scene, c_train: np.ndarray, y: np.ndarray, dim: int, reference
     errors = []
     for i in range(len(f)):
         keep = np.arange(len(f)) != i
-        noise_std = None
-        if cal.features == "whitened":
-            noise_std = np.sqrt(reading_variance(f[keep].mean(axis=0), reference, cal.noise)[0])
         try:
-            model = fit(f[keep], y[keep], cal.kernel, cal.smoothing, noise_std, cal.min_spread)
+            model = calibration_map(cal, f[keep], y[keep], reference)
             errors.append(point_errors(model.predict(f[i:i + 1]), y[i:i + 1], dim).mean())
         except (ValueError, np.linalg.LinAlgError):
             errors.append(np.nan)
@@ -107,10 +113,7 @@ def map_noise(scene, c_train: np.ndarray, y: np.ndarray, dim: int, reference: np
     map's Jacobian in the features (central differences) times each feature's noise."""
     cal = scene.calibration
     f = features_of(c_train, reference)
-    noise_std = None
-    if cal.features == "whitened":
-        noise_std = np.sqrt(reading_variance(f.mean(axis=0), reference, cal.noise)[0])
-    model = fit(f, y, cal.kernel, cal.smoothing, noise_std, cal.min_spread)
+    model = calibration_map(cal, f, y, reference)
     var = reading_variance(f, reference, cal.noise)[0]  # (n, k)
     total = np.zeros(len(f))
     for j in range(f.shape[1]):
@@ -140,11 +143,12 @@ def confusion(scene, c_grid: np.ndarray, y: np.ndarray, dim: int, reference: np.
 
 
 def outlines_of(store, label: str, scene):
+    from mscap.service.selection import design_of
     from mscap.service.store import read_run
 
-    if label == "scene":
+    run, which = design_of(label)
+    if run is None:
         return tuple(scene.layout.outlines)
-    run, _, which = label.partition(":")
     record = read_run(store, run)
     return tuple(record.initial_outlines if which == "initial" else record.final_outlines)
 
@@ -153,6 +157,7 @@ def score_run(path: Path) -> list[dict]:
     import h5py
 
     from mscap.service.calibrated import cache_path
+    from mscap.service.selection import design_of
     from mscap.service.store import read_store
 
     original = load_scene(path.with_suffix(".toml"))
@@ -193,7 +198,7 @@ def score_run(path: Path) -> list[dict]:
             value["bound+noise_grid"] = math.hypot(value["bound"], value["noise_grid"])
             value["bound+loo"] = math.hypot(value["bound"], value["loo"])
             value["bound+confusion"] = math.hypot(value["bound"], value["confusion"])
-            rows.append(dict(run=path.stem, design=label, final=":" not in label and label != "scene",
+            rows.append(dict(run=path.stem, design=label, final=design_of(label)[1] == "final",
                              error=float(error), stored_bound=float(stored_bound), **value))
     finally:
         store.close()

@@ -22,12 +22,10 @@ A variant is a JSON object of MeshSettings / ElasticSettings fields, as in poke_
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import os
 import sys
-import time
 from pathlib import Path
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
@@ -39,27 +37,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import table_head  # noqa: E402
-from benchmarks.poke_signal import hand_set_scene  # noqa: E402
+from benchmarks.poke_signal import hand_set_scene, run  # noqa: E402
 from mscap.design.history import pairwise_l1  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
-from mscap.fem.simulate import simulate  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
+from mscap.service.accuracy import relative_difference  # noqa: E402
 
 #: The reference ladder: uniform P2 elastic edges (mm), refined by √2 each.
 LADDER = (5.0, 5.0 / math.sqrt(2.0), 2.5)
 #: The variants compared with the reference by default.
 VARIANTS = [{"label": "as shipped"}, {"label": "hand-set P1 meshes", "hand_set": True}]
-
-
-def capacitances(scene, variant: dict) -> tuple[np.ndarray, float, int]:
-    """The ``(poses, k)`` capacitance table of ``scene`` with ``variant``'s settings, the
-    wall and the elastic nodes."""
-    mesh = dataclasses.replace(scene.mesh, **variant.get("mesh", {}))
-    elastic = dataclasses.replace(scene.elastic, **variant.get("elastic", {}))
-    start = time.perf_counter()
-    sim = simulate(dataclasses.replace(scene, mesh=mesh, elastic=elastic), keep_fields=False)
-    nodes = 0 if sim.elastic is None else sim.elastic.rest.shape[0]
-    return sim.capacitance_pF, time.perf_counter() - start, nodes
 
 
 def richardson(tables: list[np.ndarray], ratio: float = math.sqrt(2.0)) -> tuple[np.ndarray, float]:
@@ -76,7 +63,7 @@ def richardson(tables: list[np.ndarray], ratio: float = math.sqrt(2.0)) -> tuple
 def errors(c: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
     """Worst relative error of a pose-to-pose L1 distance, and of the smallest one."""
     d, d_ref = pairwise_l1(c), pairwise_l1(reference)
-    return float(np.max(np.abs(d / d_ref - 1))), float(d.min() / d_ref.min() - 1)
+    return relative_difference(d, d_ref), float(d.min() / d_ref.min() - 1)
 
 
 def main(argv=None) -> int:
@@ -92,7 +79,7 @@ def main(argv=None) -> int:
     for edge in LADDER:
         variant = {"label": f"P2 {edge:.2f} mm uniform", "elastic": {"order": 2, "edge_length_mm": edge,
                                                                       "refine_pokes": False}}
-        c, wall, nodes = capacitances(scene, variant)
+        c, wall, _, nodes = run(scene, variant)
         tables.append(c)
         rows.append((variant["label"], c, wall, nodes))
         print(f"{variant['label']}: {nodes:,} elastic nodes, {wall:.1f} s", flush=True)
@@ -101,7 +88,7 @@ def main(argv=None) -> int:
           f"smallest {pairwise_l1(reference).min():.4f} pF", flush=True)
     for variant in variants:
         chosen = load_scene(hand_set_scene(path)) if variant.get("hand_set") else scene
-        c, wall, nodes = capacitances(chosen, variant)
+        c, wall, _, nodes = run(chosen, variant)
         rows.append((variant.get("label", json.dumps(variant)), c, wall, nodes))
     print()
     print("\n".join(table_head("| elastic | elastic nodes | wall | worst distance error | smallest distance "
