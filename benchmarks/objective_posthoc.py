@@ -27,6 +27,10 @@ Candidates, each on the design grid (what the optimiser sees), per design:
   causes through the calibration's map fitted on the grid, linearised (the map's
   Jacobian by central differences times each feature's noise);
 - ``bound+loo``, ``bound+confusion``, ``bound+noise_grid``: root sums of squares;
+- ``readback``: ``[optimizer] distance = "readback"``'s objective as the optimiser computes it
+  (:class:`ReadbackError`: the bound ⊕ :class:`MapNoise`, which is ``noise_grid`` without
+  central differences); ``map_noise_full``, ``readback_full``: the same on the whole
+  training grid (what a design grid as fine as the training family would give);
 - ``loo_training``, ``noise_training``: the same on the whole training family (not available
   to the optimiser, which simulates only the grid: diagnostics of what is predictable at all).
 
@@ -57,11 +61,14 @@ sys.path.insert(0, str(ROOT))
 
 from mscap.calibration.reconstruction import fit, point_errors  # noqa: E402
 from mscap.calibration.service import Candidate, read_cache, targets  # noqa: E402
-from mscap.design.readback import ReconstructionBound, design_scene, difference_variance, reading_variance  # noqa: E402
+from mscap.design.readback import (MapNoise, ReadbackError, ReconstructionBound, design_scene,  # noqa: E402
+                                   difference_variance, reading_variance)
 from mscap.scene import load_scene  # noqa: E402
 
 CANDIDATES = ("bound", "bound_prior/100", "bound_prior*10", "bound_prior*100", "bound_full", "bound_mean", "loo", "confusion", "bound+loo", "bound+confusion", "loo_training",
-              "noise_training", "noise_grid", "bound+noise_grid")
+              "noise_training", "noise_grid", "bound+noise_grid", "readback", "map_noise_full", "readback_full")
+#: The candidates that fit a map per left-out pose or on the whole family (most of the time).
+SLOW = ("loo", "loo_training", "noise_training", "bound+loo")
 
 
 def design_rows(scene, training: np.ndarray, reference: np.ndarray | None) -> tuple[np.ndarray, list[int]]:
@@ -153,7 +160,7 @@ def outlines_of(store, label: str, scene):
     return tuple(record.initial_outlines if which == "initial" else record.final_outlines)
 
 
-def score_run(path: Path) -> list[dict]:
+def score_run(path: Path, fast: bool = False) -> list[dict]:
     import h5py
 
     from mscap.service.calibrated import cache_path
@@ -175,6 +182,8 @@ def score_run(path: Path) -> list[dict]:
     counts = [len(np.unique(values[:, i])) for i in range(values.shape[1])]
     full = design_scene(replace(original, optimizer=replace(original.optimizer, family_grid=counts)))
     full_bound = ReconstructionBound.of(full)
+    readback = ReadbackError(bound, MapNoise.of(scene))
+    full_noise = MapNoise.of(full)
     priors = {name: ReconstructionBound(replace(scene.design_family, prior=scene.design_family.prior * f), bound.tau_mm)
               for name, f in (("bound_prior/100", 0.01), ("bound_prior*10", 10.0), ("bound_prior*100", 100.0))}
     rows = []
@@ -186,14 +195,20 @@ def score_run(path: Path) -> list[dict]:
             reference = data[f"reference_{cal.reference}"][0] if cal.reference else None
             c_rows, index = design_rows(scene, data["training"], reference)
             c_grid, y_grid = data["training"][index], y_train[index]
+            c_full = design_rows(full, data["training"], reference)[0]
             value = {"bound": bound.value_and_gradient(c_rows)[0],
+                     "readback": readback.value(c_rows), "map_noise_full": full_noise.value(c_full),
                      "bound_mean": float(bound.per_pose_mm(c_rows).mean()),
                      **{name: b.value_and_gradient(c_rows)[0] for name, b in priors.items()},
-                     "bound_full": full_bound.value_and_gradient(design_rows(full, data["training"], reference)[0])[0],
-                     "noise_training": map_noise(scene, data["training"], y_train, dim, reference),
-                     "loo": leave_one_out(scene, c_grid, y_grid, dim, reference),
-                     "confusion": confusion(scene, c_grid, y_grid, dim, reference),
-                     "loo_training": leave_one_out(scene, data["training"], y_train, dim, reference)}
+                     "bound_full": full_bound.value_and_gradient(c_full)[0],
+                     "confusion": confusion(scene, c_grid, y_grid, dim, reference)}
+            value["readback_full"] = math.hypot(value["bound_full"], value["map_noise_full"])
+            if fast:
+                value.update({name: math.nan for name in SLOW})
+            else:
+                value.update(noise_training=map_noise(scene, data["training"], y_train, dim, reference),
+                             loo=leave_one_out(scene, c_grid, y_grid, dim, reference),
+                             loo_training=leave_one_out(scene, data["training"], y_train, dim, reference))
             value["noise_grid"] = map_noise(scene, c_grid, y_grid, dim, reference)
             value["bound+noise_grid"] = math.hypot(value["bound"], value["noise_grid"])
             value["bound+loo"] = math.hypot(value["bound"], value["loo"])
@@ -215,22 +230,24 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("results", nargs="+", help="results files of benchmarks/objective_rank.py")
     parser.add_argument("--designs", action="store_true", help="print every design's values too")
+    parser.add_argument("--fast", action="store_true", help="leave out " + ", ".join(SLOW) + " (a minute, not six)")
     args = parser.parse_args(argv)
+    candidates = [c for c in CANDIDATES if not (args.fast and c in SLOW)]
     logging.disable(logging.WARNING)  # the maps fitted on few poses say so per fit
     paths = [Path(p) for p in args.results if not p.endswith("_calibration.h5")]
-    table = {c: ([], []) for c in CANDIDATES}
-    print("| run | designs | " + " | ".join(CANDIDATES) + " |  (Spearman with calibrated error: all / finals)")
-    print("|---|---|" + "---|" * len(CANDIDATES))
+    table = {c: ([], []) for c in candidates}
+    print("| run | designs | " + " | ".join(candidates) + " |  (Spearman with calibrated error: all / finals)")
+    print("|---|---|" + "---|" * len(candidates))
     for path in paths:
-        rows = score_run(path)
+        rows = score_run(path, args.fast)
         if args.designs:
             for r in rows:
                 print("   ", r["design"], f"error {r['error']:.3f}", f"stored bound {r['stored_bound']:.3f}",
-                      " ".join(f"{c} {r[c]:.3f}" for c in CANDIDATES))
+                      " ".join(f"{c} {r[c]:.3f}" for c in candidates))
         err = [r["error"] for r in rows]
         finals = [r for r in rows if r["final"]]
         cells = []
-        for c in CANDIDATES:
+        for c in candidates:
             s_all = spearman([r[c] for r in rows], err)
             s_fin = spearman([r[c] for r in finals], [r["error"] for r in finals])
             table[c][0].append(s_all)
@@ -238,7 +255,7 @@ def main(argv=None) -> int:
             cells.append(f"{s_all:+.2f} / {s_fin:+.2f}")
         print(f"| {path.stem} | {len(rows)} | " + " | ".join(cells) + " |", flush=True)
     print("| mean | | " + " | ".join(f"{np.nanmean(table[c][0]):+.2f} / {np.nanmean(table[c][1]):+.2f}"
-                                     for c in CANDIDATES) + " |")
+                                     for c in candidates) + " |")
     return 0
 
 

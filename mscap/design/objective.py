@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, design_scene
+from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, design_scene, read_back_estimate
 from mscap.design.terms import Sum, Term, Weighted, soft_min
 from mscap.errors import GeometryError, MscapError
 from mscap.fem.elastic.contact import barrier, barrier_derivatives
@@ -382,7 +382,9 @@ def capacitance_term(scene: Scene) -> Term:
       distances in the read-out noise of the ``[calibration]`` protocol (tared when it
       names a reference pose, else raw; appendix A's noise without a calibration);
     - ``"reconstruction"``: minus :class:`mscap.design.readback.ReconstructionBound` (``tau_mm``),
-      so d = −bound (mm); needs design poses from the calibration family.
+      so d = −bound (mm); needs design poses from the calibration family;
+    - ``"readback"``: minus :class:`mscap.design.readback.ReadbackError`, the bound ⊕ the noise of
+      the calibration's map fitted on the grid (mm); the same poses.
     """
     settings = scene.optimizer
     if settings.distance == "pF":
@@ -390,6 +392,8 @@ def capacitance_term(scene: Scene) -> Term:
     scene = design_scene(scene)
     if settings.distance == "reconstruction":  # design_scene checked there is a family
         return -1.0 * ReconstructionBound(scene.design_family, settings.tau_mm)
+    if settings.distance == "readback":
+        return -1.0 * read_back_estimate(scene)
     cal = scene.calibration
     noise = cal.noise if cal is not None else NoiseModel()
     reference = None

@@ -12,7 +12,10 @@ pose read back from noisy read-outs over a continuous family, so a scene with a
   with (tared against a reference pose, or raw), or
 - :class:`ReconstructionBound`: a soft maximum over the grid of the Cramér–Rao bound on
   the RMS per-vertex error of any unbiased reconstruction, from the finite-difference
-  Jacobian of the read-outs along the grid.
+  Jacobian of the read-outs along the grid, or
+- :class:`ReadbackError`: that bound ⊕ :class:`MapNoise`, the RMS over the grid of the error
+  the read-out noise causes through the calibration's own map fitted on the grid (the
+  map's slope, which the local bound does not see; docs/optimize.md, "The map's noise").
 
 Both are smooth functions of the design poses' capacitances ``C`` ``(n_rows, k)`` (pF), so
 ``∂/∂C`` enters the existing adjoint pipeline unchanged.
@@ -33,6 +36,7 @@ Noise (appendix A, :class:`mscap.scene.calibration.NoiseModel`): per run a facto
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -43,7 +47,7 @@ from mscap.scene.loader import check_optimizer, family_grid_counts
 from mscap.scene.settings import Scene
 
 __all__ = ["DesignFamily", "design_family", "design_scene", "ProtocolDissimilarity",
-           "ReconstructionBound", "reading_variance", "difference_variance", "grid_pose_name", "grid_derivatives"]
+           "ReconstructionBound", "MapNoise", "ReadbackError", "read_back_estimate", "reading_variance", "difference_variance", "grid_pose_name", "grid_derivatives"]
 
 # ---------------------------------------------------------------- noise per protocol
 def reading_variance(capacitance_pF: np.ndarray, reference_pF: np.ndarray | None, noise: NoiseModel):
@@ -53,7 +57,8 @@ def reading_variance(capacitance_pF: np.ndarray, reference_pF: np.ndarray | None
     ∂var/∂C_ref at fixed ρ)``; raw (features C): ``(var, ∂var/∂C, 0)``.
     """
     h2, sigma2 = noise.relative_shift**2, noise.additive_std_pF**2
-    c = np.asarray(capacitance_pF, dtype=float)
+    c = np.asarray(capacitance_pF)
+    c = c if np.iscomplexobj(c) else c.astype(float)  # a complex step passes through
     if reference_pF is None:
         return h2 / 3 * c**2 + sigma2, 2 * h2 / 3 * c, 0.0
     scale = sigma2 / (reference_pF**2 * (1 - h2))
@@ -85,7 +90,9 @@ class DesignFamily:
     ``sensitivity`` ``(n_grid, p, p)`` GᵀG / n_points of the reconstruction targets (mm²
     per unit² of the parameters); ``prior`` ``(p,)`` the precision 12 / range² of a
     uniform prior over the training range (keeps the bound finite where the read-outs
-    say nothing); ``noise`` the calibration's noise model.
+    say nothing); ``noise`` the calibration's noise model; ``target_gram`` ``(n_grid,
+    n_grid)`` X Xᵀ / n_points of the grid's reconstruction targets X (mm² per point:
+    :class:`MapNoise`).
     """
 
     parameters: tuple[str, ...]
@@ -97,6 +104,7 @@ class DesignFamily:
     sensitivity: np.ndarray
     prior: np.ndarray
     noise: NoiseModel
+    target_gram: np.ndarray | None = None
 
     @property
     def protocol(self) -> str:
@@ -185,7 +193,7 @@ def design_family(scene: Scene) -> tuple[tuple, DesignFamily | None]:
     span = np.array([a[-1] - a[0] for a in full_axes])
     family = DesignFamily(parameters=cal.parameters, axes=axes, values=values, rows=rows,
                           reference_row=reference_row, derivative=derivative, sensitivity=sensitivity,
-                          prior=12.0 / span**2, noise=cal.noise)
+                          prior=12.0 / span**2, noise=cal.noise, target_gram=x @ x.T / (x.shape[1] // dim))
     return tuple(poses), family
 
 
@@ -305,3 +313,185 @@ class ReconstructionBound(Term):
         np.add.at(g_f_rows, fam.rows, g_f)
         g_ref = (g_var * dvar_dref).sum(axis=0) if ref is not None else 0.0
         return value, _back_features(c, fam.reference_row, g_f_rows, g_ref)
+
+
+# ---------------------------------------------------------------- the calibration map's noise
+#: Imaginary step (pF) of :class:`MapNoise`'s complex-step gradient: exact to rounding at any
+#: size this small, since no difference is taken.
+COMPLEX_STEP_PF = 1e-20
+#: Perturbed copies per batch of that gradient (bounds the ``(batch, n, n, r)`` kernel arrays).
+GRADIENT_BATCH = 32
+
+
+def _matrix_sign(x: np.ndarray, max_iterations: int = 200) -> np.ndarray:
+    """sign(X) of a batch of symmetric matrices (complex-step perturbed) by Newton's iteration
+    X ← (X + X⁻¹) / 2: rational in X, so a complex step differentiates it. Three more
+    steps after the real parts settle let the derivatives (quadratic too) settle."""
+    extra = 0
+    for _ in range(max_iterations):
+        nxt = 0.5 * (x + np.linalg.inv(x))
+        settled = np.abs((nxt - x).real).max() <= 1e-14 * max(1.0, np.abs(nxt.real).max())
+        x = nxt
+        extra += settled
+        if extra > 3:
+            return x
+    raise ArithmeticError("the matrix sign iteration did not converge: a principal spread lies on min_spread")
+
+
+def _orthonormal(q: np.ndarray) -> np.ndarray:
+    """Gram–Schmidt on the columns of a batch ``(B, k, r)``, with plain (not conjugated)
+    products so that a complex step carries the derivative."""
+    cols = []
+    for j in range(q.shape[-1]):
+        v = q[..., j]
+        for u in cols:
+            v = v - (u * v).sum(axis=-1, keepdims=True) * u
+        cols.append(v / np.sqrt((v * v).sum(axis=-1, keepdims=True)))
+    return np.stack(cols, axis=-1)
+
+
+@dataclass(frozen=True, eq=False)
+class MapNoise(Term):
+    """The error (mm) the read-out noise causes through the calibration's own map, fitted on
+    the design grid, linearised: the RMS over the grid points g of
+
+        E_g = tr( Cov_g(t) · G_g S G_gᵀ ),   G_g = ∂w/∂t (r × n_grid) at t_g,
+
+    where w(t) are the weights of the grid poses' targets in the map (fitted to the
+    identity, as :func:`mscap.calibration.reconstruction.fit` fits it), t the map's
+    coordinates, Cov_g(t) the read-out noise carried into them and S = X Xᵀ / n_points
+    the targets' Gram matrix (:attr:`DesignFamily.target_gram`), so G_g S G_gᵀ is the
+    mean over the body's points of the squared slope.
+
+    The map is the calibration's (``[calibration]`` ``kernel`` — only the thin-plate
+    spline, r² log r with a linear polynomial —, ``smoothing``, ``features``,
+    ``min_spread``): with whitened features, t are the grid features in noise standard
+    deviations (each at the grid's mean features), projected on the principal directions
+    whose spread over the grid is at least ``min_spread``; the spline is invariant under
+    rotations of t, so only that subspace matters. Where a direction crosses
+    ``min_spread`` the map, and this term, jump, as the user's calibration does.
+
+    The gradient ``∂/∂C`` is by complex step over the design rows' capacitances (exact to
+    rounding; the subspace by a matrix sign function, Gram–Schmidt for its basis)."""
+
+    family: DesignFamily
+    smoothing: float = 1.0
+    whitened: bool = True
+    min_spread: float = 0.5
+
+    @classmethod
+    def of(cls, scene: Scene) -> MapNoise:
+        """The term of a design scene with a design family (:func:`design_scene`)."""
+        cal = scene.calibration
+        if cal.kernel != "thin_plate_spline":
+            raise ValueError(f"the map's noise is written for the thin-plate spline, not {cal.kernel!r}")
+        return cls(scene.design_family, cal.smoothing, cal.features == "whitened", cal.min_spread)
+
+    def per_pose_mm(self, capacitance_pF: np.ndarray) -> np.ndarray:
+        """√E_g (mm) per grid point."""
+        return np.sqrt(self._squares(np.asarray(capacitance_pF, dtype=float)[None])[0].real)
+
+    def value(self, capacitance_pF: np.ndarray) -> float:
+        return float(np.sqrt(self._squares(np.asarray(capacitance_pF, dtype=float)[None])[0].real.mean()))
+
+    def value_and_gradient(self, capacitance_pF: np.ndarray) -> tuple[float, np.ndarray]:
+        c = np.asarray(capacitance_pF, dtype=float)
+        fam = self.family
+        rows = np.unique(np.r_[fam.rows, [] if fam.reference_row is None else [fam.reference_row]]).astype(int)
+        entries = [(i, j) for i in rows for j in range(c.shape[1])]
+        value = self.value(c)
+        grad = np.zeros_like(c)
+        if value == 0.0:  # a map that answers the mean pose, or noise-free read-outs
+            return value, grad
+        for lo in range(0, len(entries), GRADIENT_BATCH):
+            part = entries[lo:lo + GRADIENT_BATCH]
+            batch = np.repeat(c[None].astype(complex), len(part), axis=0)
+            for b, (i, j) in enumerate(part):
+                batch[b, i, j] += 1j * COMPLEX_STEP_PF
+            d_mean = self._squares(batch).mean(axis=1).imag / COMPLEX_STEP_PF  # ∂ mean E / ∂C_ij
+            for (i, j), d in zip(part, d_mean):
+                grad[i, j] = d / (2 * value)
+        return value, grad
+
+    def _squares(self, c: np.ndarray) -> np.ndarray:
+        """E_g ``(B, n_grid)`` of a batch of design-row capacitances ``(B, n_rows, k)``."""
+        fam = self.family
+        if fam.target_gram is None:
+            raise ValueError("the design family has no targets' Gram matrix (made by design_family)")
+        if fam.reference_row is None:
+            f_rows, ref = c, None
+        else:
+            ref = c[:, fam.reference_row][:, None, :]
+            f_rows = c / ref
+        f = f_rows[:, fam.rows]                                    # (B, n_grid, k)
+        # Grid points that are one pose share a row; the map merges them into one sample
+        # with the mean target (fit merges equal read-outs), the moments count each.
+        rows, first, inverse = np.unique(fam.rows, return_index=True, return_inverse=True)
+        average = (inverse[None, :] == np.arange(len(rows))[:, None]) / np.bincount(inverse)[:, None]
+        gram = average @ fam.target_gram @ average.T
+        var = reading_variance(f[:, first], ref, fam.noise)[0]    # (B, n, k) at the samples
+        center = f.mean(axis=1, keepdims=True)
+        std = np.sqrt(reading_variance(center, ref, fam.noise)[0]) if self.whitened else np.ones_like(center)
+        smoothing, whiten = self.smoothing, self.whitened
+        if not (np.abs(std) > 0).all():  # noise-free read-outs: calibrate fits the plain interpolant
+            std, smoothing, whiten = np.ones_like(center), 0.0, False
+            if not (np.abs(var) > 0).any():
+                return np.zeros(f.shape[:2], dtype=c.dtype)
+        z = (f - center) / std
+        k = z.shape[2]
+        q = np.broadcast_to(np.eye(k, dtype=c.dtype), (len(c), k, k))
+        if whiten:
+            moment = np.einsum("bgi,bgj->bij", z, z) / z.shape[1]
+            lam, vec = np.linalg.eigh(moment[0].real)
+            keep = lam >= self.min_spread**2
+            if not keep.any():  # the map answers the mean pose: no slope
+                return np.zeros(f.shape[:2], dtype=c.dtype)
+            if not keep.all():
+                sign = _matrix_sign((moment - self.min_spread**2 * np.eye(k)) / self.min_spread**2)
+                q = _orthonormal(0.5 * (np.eye(k) + sign) @ vec[:, keep])
+        t = z[:, first] @ q                                         # (B, n, r) at the samples
+        n, r = t.shape[1:]
+        d = t[:, :, None, :] - t[:, None, :, :]                     # (B, g, l, r)
+        eye = np.eye(n, dtype=bool)
+        log_r2 = np.log(np.where(eye, 1.0, (d * d).sum(axis=3)))
+        kernel = np.where(eye, 0.0, 0.5 * np.exp(log_r2) * log_r2) + smoothing * np.eye(n)
+        poly = np.concatenate([np.ones((len(c), n, 1), dtype=t.dtype), t], axis=2)
+        lhs = np.zeros((len(c), n + r + 1, n + r + 1), dtype=t.dtype)
+        lhs[:, :n, :n], lhs[:, :n, n:], lhs[:, n:, :n] = kernel, poly, poly.transpose(0, 2, 1)
+        rhs = np.zeros((n + r + 1, n))
+        rhs[:n] = np.eye(n)
+        weights = np.linalg.solve(lhs, np.broadcast_to(rhs, (len(c), n + r + 1, n)))
+        # ∂φ/∂t = (t − t_l)(log r² + 1) for φ = r² log r, 0 at r = 0
+        slope = np.einsum("bglr,bgl,bln->bgrn", d, np.where(eye, 0.0, log_r2 + 1), weights[:, :n]) \
+            + weights[:, None, n + 1:]
+        cov = np.einsum("bkr,bgk,bks->bgrs", q, var / std**2, q)    # noise in t per grid point
+        return np.einsum("bgrs,bgsn,nm,bgrm->bg", cov, slope, gram, slope)[:, inverse]
+
+
+@dataclass(frozen=True, eq=False)
+class ReadbackError(Term):
+    """√(bound² + map noise²) (mm): the :class:`ReconstructionBound` — what any estimator
+    loses to the noise, locally — and the :class:`MapNoise` — what the calibration's map,
+    fitted on the grid, adds by its slope. ``[optimizer] distance = "readback"``."""
+
+    bound: ReconstructionBound
+    noise: MapNoise
+
+    def value(self, capacitance_pF: np.ndarray) -> float:
+        return math.hypot(self.bound.value(capacitance_pF), self.noise.value(capacitance_pF))
+
+    def value_and_gradient(self, capacitance_pF: np.ndarray) -> tuple[float, np.ndarray]:
+        b, g_b = self.bound.value_and_gradient(capacitance_pF)
+        m, g_m = self.noise.value_and_gradient(capacitance_pF)
+        value = math.hypot(b, m)
+        return value, (b * g_b + m * g_m) / value
+
+
+def read_back_estimate(scene: Scene) -> Term | None:
+    """What a design scene's runs are judged by before calibration (mm, stored as
+    ``bound_mm``): the :class:`ReadbackError` when the scene optimises it, else the
+    :class:`ReconstructionBound`; ``None`` without a design family."""
+    bound = ReconstructionBound.of(scene)
+    if bound is None or scene.optimizer.distance != "readback":
+        return bound
+    return ReadbackError(bound, MapNoise.of(scene))

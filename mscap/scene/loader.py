@@ -559,10 +559,14 @@ def check_optimizer(path: str, optimizer: OptimizerSettings, calibration: Calibr
             raise SceneError(path, "optimizer.design_poses",
                              f"{mode!r} takes poses from the [calibration] family, and this scene has none")
         family_grid_counts(path, optimizer, calibration)
-    elif optimizer.distance == "reconstruction":
+    elif optimizer.distance in ("reconstruction", "readback"):
         raise SceneError(path, "optimizer.design_poses",
-                         'distance = "reconstruction" needs poses from the calibration family: '
+                         f'distance = "{optimizer.distance}" needs poses from the calibration family: '
                          'set design_poses = "family" or "both"')
+    if optimizer.distance == "readback" and calibration is not None and calibration.kernel != "thin_plate_spline":
+        raise SceneError(path, "optimizer.distance",
+                         f'"readback" differentiates the calibration map\'s noise for the thin-plate spline only; '
+                         f'[calibration] kernel is {calibration.kernel!r} (use "reconstruction", or that kernel)')
 
 
 def family_grid_counts(path: str, optimizer: OptimizerSettings, calibration: CalibrationSettings) -> tuple[int, ...]:

@@ -45,7 +45,7 @@ ELASTIC_MESHES = ("own", "shared")
 SKINNING_METHODS = ("bbw", "harmonic")
 #: ``[optimizer] distance``: how pose capacitance vectors are compared
 #: (:func:`mscap.design.objective.capacitance_term`).
-DISTANCES = ("pF", "noise", "reconstruction")
+DISTANCES = ("pF", "noise", "reconstruction", "readback")
 #: ``[optimizer] design_poses`` (:mod:`mscap.design.readback`).
 DESIGN_POSES = ("listed", "family", "both")
 #: Grid points per calibration parameter when ``family_grid`` is not given.
@@ -248,9 +248,10 @@ STALL_TOLERANCE = 1e-2
 class OptimizerSettings:
     """Design-optimisation settings (scene table ``[optimizer]``; :mod:`mscap.design.optimizer`).
 
-    ``distance`` (``"pF"``, ``"noise"`` or ``"reconstruction"``: capacitance differences in
-    pF, read-out differences in the noise of the calibration's protocol, or the
-    Cramér–Rao bound on the read-back error over the family, :mod:`mscap.design.readback`),
+    ``distance`` (``"pF"``, ``"noise"``, ``"reconstruction"`` or ``"readback"``: capacitance
+    differences in pF, read-out differences in the noise of the calibration's protocol, the
+    Cramér–Rao bound on the read-back error over the family, or that bound ⊕ the noise the
+    calibration's own map adds on the grid, :mod:`mscap.design.readback`),
     ``tau_pF2`` / ``tau_noise`` / ``tau_mm`` (the soft minimum's or maximum's temperature
     in those units), ``barrier_weight``, ``smoothing_weight``: the objective
     (:func:`mscap.design.objective.layout_objective`). ``design_poses``: ``"listed"`` (the

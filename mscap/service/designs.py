@@ -135,12 +135,12 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
     """Write :data:`OPTIMIZE_FILES` of one start (initial layout ``initial``, an
     ``OptimizeResult``) of the design scene ``scene`` to ``directory``; returns the summary.
     With a design family the summary holds the read-back bound before and after."""
-    from mscap.design.readback import ReconstructionBound
+    from mscap.design.readback import read_back_estimate
     from mscap.outputs import output_directory, replace_csv, replace_text
 
     out = output_directory(directory, "optimize -o")
     final = result.layout
-    bound = ReconstructionBound.of(scene)
+    bound = read_back_estimate(scene)
     poses = [p.name for p in scene.poses]
     # Each file replaced, not written through: a link planted under its name is not followed.
     replace_text(out / "outlines.json", json.dumps(

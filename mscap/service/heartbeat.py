@@ -46,6 +46,8 @@ class Progress:
         "0.51 pF" (min L1) or "J -0.23 (min L1 0.51 pF)"."""
         if self.kind == "bound":
             return f"bound {self.score:.3g} mm"
+        if self.kind == "readback":
+            return f"read-back {self.score:.3g} mm (bound ⊕ map noise)"
         if self.kind == "J":
             return f"J {self.score:.4g} (min L1 {self.min_l1_pF:.4g} pF)"
         return f"{self.min_l1_pF:.4g} pF"

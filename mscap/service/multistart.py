@@ -50,7 +50,7 @@ from typing import TYPE_CHECKING, Callable
 from mscap.fem.simulate import release_freed_memory
 from mscap.mesh.budget import check_scene
 from mscap.service.accuracy import Equilibria, estimate_error, finer
-from mscap.design.readback import ReconstructionBound
+from mscap.design.readback import read_back_estimate
 from mscap.service import calibrated, farm
 from mscap.service.forecast import Forecast, duration
 from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
@@ -133,7 +133,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
                                             time.perf_counter() - start, rank), cpu_s=meter.cpu_s)
         if result.reason == "pruned":
             record = replace(record, status="pruned", reason=verdicts[-1].reason(rule))
-        bound = ReconstructionBound.of(scene)
+        bound = read_back_estimate(scene)
         if bound is not None:
             record = replace(record, bound_mm=bound.value(record.final_capacitance_pF),
                              initial_bound_mm=bound.value(record.initial_capacitance_pF))
@@ -203,7 +203,7 @@ def run_check(scene: Scene, record, ask: Callable | None = None):
     meter = Meter()
     start_scene = design_scene(with_layout(scene, initial_layout(scene, record.k, record.seed, record.init)))
     checked = _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None,
-                          ReconstructionBound.of(start_scene), ask)
+                          read_back_estimate(start_scene), ask)
     # The larger of the run's peak (an earlier session's; NaN if not stored) and the check's here.
     peak = meter.peak_rss_mb if not record.peak_rss_mb > meter.peak_rss_mb else record.peak_rss_mb
     return replace(checked, peak_rss_mb=peak)
@@ -348,7 +348,8 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
                               history=rec.history if rec.status == "ok" else None)
             metric = f"{rec.metric:.4g} pF" if rec.ok else rec.error.splitlines()[0][:80]
             if rec.ok and math.isfinite(rec.bound_mm):  # designed for read-back: the bound first
-                metric = f"read-back bound {rec.initial_bound_mm:.3g} -> {rec.bound_mm:.3g} mm (min L1 {metric})"
+                what = "read-back (bound ⊕ map noise)" if kind == "readback" else "read-back bound"
+                metric = f"{what} {rec.initial_bound_mm:.3g} -> {rec.bound_mm:.3g} mm (min L1 {metric})"
             if rec.ok and math.isfinite(rec.error_estimate):
                 metric += f" (finer mesh: C within {100 * rec.error_estimate:.2g} %)"
             elif rec.status == "ok" and ms.error_estimate:

@@ -51,8 +51,11 @@ __all__ = ["PruneRule", "Verdict", "Rungs", "Envelope", "ENVELOPE_HEADROOM", "ru
 
 
 def score_kind(scene) -> str:
-    """The scene's score: the bound when it designs for it, else the min L1 distance on
+    """The scene's score: the bound, or the read-back estimate (bound ⊕ map noise), when it
+    designs for it, else the min L1 distance on
     listed poses, else J (design poses from the family compared in read-out noise)."""
+    if scene.optimizer.distance == "readback":
+        return "readback"
     if scene.optimizer.distance == "reconstruction":
         return "bound"
     return "min_l1" if scene.optimizer.design_poses == "listed" else "J"
@@ -62,7 +65,7 @@ def score(kind: str, J, d, min_l1_pF):
     """A start's score at a rung, lower is better, from its history values (scalars or
     columns): the read-back bound (mm; −d when the objective is the bound), minus the min
     pairwise L1 distance (pF), or J."""
-    if kind == "bound":
+    if kind in ("bound", "readback"):
         return -np.asarray(d, dtype=float)
     if kind == "min_l1":
         return -np.asarray(min_l1_pF, dtype=float)
@@ -88,7 +91,7 @@ def goodness(kind: str, value):
     value = np.asarray(value, dtype=float)
     if kind == "min_l1":
         return -value
-    if kind == "bound":
+    if kind in ("bound", "readback"):
         return 1.0 / value
     raise ValueError(f"score kind {kind!r} has no goodness: the envelope rule needs min L1 or the bound")
 

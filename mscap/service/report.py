@@ -337,7 +337,8 @@ def table(selection, title: str = "", errors: dict | None = None, readings: dict
                          "over the noise seeds; docs/calibration.md, \"Choosing on calibrated error\")")
         if bound:
             lines.append("  (read-back bound: soft max over the design family of the Cramér–Rao bound on the "
-                         "RMS per-vertex error, mm; docs/optimize.md)")
+                         "RMS per-vertex error, mm, ⊕ the calibration map's noise on the grid when the scene's "
+                         "distance is \"readback\"; docs/optimize.md)")
     return "\n".join(lines)
 
 

@@ -66,7 +66,9 @@ RUN_ATTRS = {
     "peak_rss_mb": ("float", "peak resident memory of the worker during the run and its check (MB; the "
                              "worker's peak so far where the kernel cannot reset it; NaN if not stored)"),
     "bound_mm": ("float", "final read-back bound: soft max over the design family's grid of the Cramér–Rao "
-                          "bound on the RMS per-vertex error (mm, mscap.design.readback; NaN without a design family)"),
+                          "bound on the RMS per-vertex error (mm, mscap.design.readback; with distance = "
+                          "\"readback\" that bound ⊕ the calibration map's noise on the grid; NaN without a "
+                          "design family)"),
     "initial_bound_mm": ("float", "the same for the initial layout (mm; NaN without a design family)"),
     "finer_bound_mm": ("float", "bound_mm of the final design on the finer mesh of error_estimate (mm; NaN without "
                                 "a design family or a check, and in files written before it was stored)"),

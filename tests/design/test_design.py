@@ -65,6 +65,12 @@ SCENES = {
                       "tau_mm": 0.05, "max_plate_area_mm2": 54.0},
         "calibration": {"pose": "bent", "reference": "rest", "training": {"radius_mm": [15.0, 30.0, 4]},
                         "sequence": {"radius_mm": [18.0, 28.0]}}},
+    # the bound ⊕ the noise of the calibration's map fitted on the grid (readback.ReadbackError),
+    # whose complex-step ∂/∂C meets the adjoints
+    "glue_map_noise": lambda: glue() | {
+        "optimizer": {"distance": "readback", "design_poses": "family", "family_grid": 3, "tau_mm": 0.05},
+        "calibration": {"pose": "bent", "reference": "rest", "training": {"radius_mm": [15.0, 30.0, 4]},
+                        "sequence": {"radius_mm": [18.0, 28.0]}}},
 }
 
 
