@@ -165,3 +165,33 @@ def test_a_readback_scene_is_scored_pruned_and_reported_in_mm(tmp_path):
     assert goodness("readback", 0.5) == pytest.approx(2.0)
     line = Progress("k2_s2000_lloyd", 2, 5, 3.0, 0.42, kind="readback").objective
     assert line == "read-back 0.42 mm (bound ⊕ map noise)"
+
+
+def test_the_map_noise_jumps_where_a_direction_crosses_min_spread():
+    """A second plate whose reading grows with the family at amplitude a: its direction's
+    spread over the grid grows through min_spread = 0.5 noise standard deviations. Below,
+    the map drops it; just above, it reads it at full slope, so one 2 % step of a more
+    than doubles the map's noise, and the noise falls again as the direction grows: the
+    wall that stops the optimiser (docs/results.md, "The bound ⊕ the map's noise as the
+    objective"). Away from the crossing the term is smooth (steps below 10 %)."""
+    rng = np.random.default_rng(2)
+    values = grid((3, 3))
+    c = nonlinear_rows(values, 2, rng)
+    x = rng.standard_normal((len(values), 6)) + values[:, :1]
+    fam = family(values, np.arange(1, 10), 0, x, 3)
+    wiggle = np.sin(2 * values[:, 0]) + values[:, 1] ** 2
+    term = MapNoise(fam, 1.0, True, 0.5)
+    spreads, noise = [], []
+    for a in 0.002 * 1.02 ** np.arange(200):
+        rows = c.copy()
+        rows[1:, 1] = 60 + a * 55 * wiggle
+        f = rows[1:] / rows[0]
+        std = np.sqrt(reading_variance(f.mean(axis=0), rows[0], NOISE)[0])
+        z = (f - f.mean(axis=0)) / std
+        spreads.append(np.sqrt(np.linalg.eigvalsh(z.T @ z / len(z))[0]))
+        noise.append(term.value(rows))
+    spreads, step = np.array(spreads), np.diff(np.log(noise))
+    crossing = np.flatnonzero((spreads[:-1] < 0.5) & (spreads[1:] >= 0.5))
+    assert len(crossing) == 1 and step[crossing[0]] > np.log(2), step[crossing]
+    assert np.abs(np.delete(step, crossing)).max() < 0.1
+    assert noise[-1] < noise[crossing[0] + 1] / 2            # and falls as the direction grows
