@@ -14,7 +14,8 @@ def add_parser(sub) -> None:
     p = sub.add_parser("inspect", help="summarise a multi-start results file (HDF5)",
                        description="Print the per-k table of a results file (runs ok/failed, the best "
                                    "run's metric: the read-back bound in mm for a scene designed for "
-                                   "read-back (with distance = readback: the bound ⊕ the map's noise), else the min pairwise L1 distance of the poses' capacitance "
+                                   "read-back (with distance = readback: the bound ⊕ the map's noise), else the min "
+                                   "pairwise L1 distance of the poses' capacitance "
                                    "vectors in pF; wall time) with the chosen k marked, the chosen "
                                    "design's estimated error, the same as JSON, or one run's history. "
                                    "The selection is recomputed from the stored runs (see docs/hdf5.md).")

@@ -10,7 +10,8 @@ def add_parser(sub) -> None:
     p = sub.add_parser("plot", help="plot the best layout per k of a multi-start results file (HDF5)",
                        description="Draw a grid of the best optimised layout per k (sheet outline, plates "
                                    "coloured, the metric in the title: the read-back bound in mm for a scene "
-                                   "designed for read-back (⊕ the map's noise with distance = readback), else the min pairwise L1 distance of the poses' "
+                                   "designed for read-back (⊕ the map's noise with distance = readback), else the "
+                                   "min pairwise L1 distance of the poses' "
                                    "capacitance vectors in pF), the chosen k framed, and a panel of the best "
                                    "metric against "
                                    "k with the plateau tolerance band of the chosen k (paper Fig. 10). "

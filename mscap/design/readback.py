@@ -47,7 +47,8 @@ from mscap.scene.loader import check_optimizer, family_grid_counts
 from mscap.scene.settings import Scene
 
 __all__ = ["DesignFamily", "design_family", "design_scene", "ProtocolDissimilarity",
-           "ReconstructionBound", "MapNoise", "ReadbackError", "read_back_estimate", "reading_variance", "difference_variance", "grid_pose_name", "grid_derivatives"]
+           "ReconstructionBound", "MapNoise", "ReadbackError", "read_back_estimate", "reading_variance",
+           "difference_variance", "grid_pose_name", "grid_derivatives"]
 
 # ---------------------------------------------------------------- noise per protocol
 def reading_variance(capacitance_pF: np.ndarray, reference_pF: np.ndarray | None, noise: NoiseModel):
