@@ -23,7 +23,7 @@ the scene's own layout, and reports from the file's ``/calibration``:
 
     .venv/bin/python benchmarks/objective_rank.py jobs/pneumatic_quick.toml [--widen 0.25 [--axes AXIS ...]]
         [--multistart-seed 1 --lloyd-fraction 0.5 --starts-per-k 3] [--calibrate-best N] [--scene-start]
-        [--distance readback] [--tag shipped] [--out out/objective_rank]
+        [--distance readback] [--no-scene-start --sensitivity-fraction 0.5] [--tag shipped] [--out out/objective_rank]
 
 ``--widen F`` widens every training axis of the scene's ``[calibration.training]`` by F of
 its span (upwards from 0, else about its centre) (the change of issue 45: +25 % made the
@@ -104,6 +104,8 @@ def main() -> None:
     parser.add_argument("--starts-per-k", type=int)
     parser.add_argument("--calibrate-best", type=int, help="runs per k calibrated (default: every run)")
     parser.add_argument("--scene-start", action="store_true", help="one more start from the scene's layout")
+    parser.add_argument("--no-scene-start", action="store_true", help="no start from the scene's layout")
+    parser.add_argument("--sensitivity-fraction", type=float, help="[multistart] sensitivity_fraction")
     parser.add_argument("--distance", choices=("reconstruction", "readback"),
                         help="the [optimizer] distance to design for (default: the scene's)")
     parser.add_argument("--tag", default="shipped")
@@ -125,7 +127,9 @@ def main() -> None:
         if not found:
             sys.exit(f"{source}: no [optimizer] distance line to replace")
     text = with_multistart(text, seed=args.multistart_seed, lloyd_fraction=args.lloyd_fraction,
-                           starts_per_k=args.starts_per_k, scene_start=True if args.scene_start else None)
+                           starts_per_k=args.starts_per_k,
+                           scene_start=True if args.scene_start else False if args.no_scene_start else None,
+                           sensitivity_fraction=args.sensitivity_fraction)
     scene_file = out / f"{name}.toml"
     scene_file.write_text(text)
     results, log = out / f"{name}.h5", out / f"{name}.log"

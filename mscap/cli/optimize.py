@@ -18,9 +18,10 @@ def add_parser(sub) -> None:
     p.add_argument("scene", help="scene file (jobs/*.toml)")
     p.add_argument("--k", type=int, help="number of capacitors (random and lloyd starts)")
     p.add_argument("--seed", type=int, default=0, help="seed of the initial layout")
-    p.add_argument("--init", choices=("random", "lloyd", "scene"), default="scene",
+    p.add_argument("--init", choices=("random", "lloyd", "scene", "sensitivity"), default="scene",
                    help="initial layout: seeded random squares (random), squares at Lloyd centroids "
-                        "(lloyd), or the scene's own layout (scene)")
+                        "(lloyd), the scene's own layout (scene), or squares where the design poses strain "
+                        "the sheet differently (sensitivity: one elastic solve per design pose first)")
     p.add_argument("--max-iterations", type=int, help="per cascade level (default: the scene's)")
     p.add_argument("--cascade", type=int, help="control-doubling levels (default: the scene's)")
     p.add_argument("-o", "--output", metavar="DIR", required=True, help="output directory")
@@ -34,7 +35,7 @@ def run(args) -> int:
     from mscap.design.optimizer import optimize
     from mscap.design.pipeline import build_design
     from mscap.design.readback import design_scene
-    from mscap.geometry.initial import initial_layout
+    from mscap.design.starts import start_layout
     from mscap.outputs import output_directory, replace_file
     from mscap.scene.sizing import with_layout
     from mscap.service.designs import OPTIMIZE_FILES, write_optimize_output
@@ -50,7 +51,7 @@ def run(args) -> int:
     scene = design_scene(load_scene_for(args))  # the design poses: listed, or from the family
     out = output_directory(args.output, "optimize -o")  # before the work
     say = progress_printer(args.quiet) or (lambda message: None)
-    layout = initial_layout(scene, args.k, args.seed, args.init)
+    layout = start_layout(scene, args.k, args.seed, args.init)
     say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(scene.poses)} design poses")
     design = build_design(with_layout(scene, layout))
     result = optimize(design, progress=say, max_iterations=args.max_iterations, cascade_levels=args.cascade)

@@ -612,6 +612,9 @@ def check_multistart(path: str, multistart: MultistartSettings) -> None:
                          f"must be in 1..{MAX_STARTS_PER_K - 1}, got {multistart.starts_per_k!r}")
     if not 0 <= multistart.lloyd_fraction <= 1:
         raise SceneError(path, "multistart.lloyd_fraction", f"must lie in [0, 1], got {multistart.lloyd_fraction!r}")
+    if not 0 <= multistart.sensitivity_fraction <= 1:
+        raise SceneError(path, "multistart.sensitivity_fraction",
+                         f"must lie in [0, 1], got {multistart.sensitivity_fraction!r}")
     if multistart.seed > MAX_SEED:
         raise SceneError(path, "multistart.seed", f"must be <= {MAX_SEED}, got {multistart.seed!r}")
     if multistart.prune_rule not in PRUNE_RULES:

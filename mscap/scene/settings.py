@@ -334,12 +334,16 @@ class MultistartSettings:
     under ``calibrate_seeds`` noise seeds, and chooses the design and k on calibrated
     read-back error (:mod:`mscap.service.calibrated`); ``calibrate_best = 0`` chooses by
     the objective alone. ``scene_start``: one more start, from the scene's own layout, at
-    its k (a hand-placed layout to improve on; :func:`mscap.service.selection.configurations`)."""
+    its k (a hand-placed layout to improve on; :func:`mscap.service.selection.configurations`).
+    ``sensitivity_fraction``: the first ``ceil(sensitivity_fraction · starts_per_k)`` starts
+    of each k (before the Lloyd ones) are sensitivity-map starts, plates on the sheet's
+    regions that the design poses strain differently (:mod:`mscap.design.starts`)."""
 
     k_min: int = 2
     k_max: int = 6
     starts_per_k: int = 25
     lloyd_fraction: float = 0.2
+    sensitivity_fraction: float = 0.0
     plateau_tol: float = 0.05
     seed: int = 0
     error_estimate: bool = True

@@ -191,7 +191,7 @@ def _optimize_layouts(scene: Scene, directory: Path, baselines: list[str] | None
     """The final layout of an ``mscap optimize`` output directory and its baselines:
     ``initial`` (rebuilt from the run's k, seed and init: initial layouts are functions
     of those alone) and ``scene``."""
-    from mscap.geometry.initial import initial_layout
+    from mscap.design.starts import start_layout
     from mscap.geometry.layout import Layout
 
     run = read_optimize_output(directory)
@@ -201,7 +201,7 @@ def _optimize_layouts(scene: Scene, directory: Path, baselines: list[str] | None
             layouts.append(("scene layout", scene.layout.outlines))
         elif b == "initial":
             init = run.summary["init"]
-            layout = scene.layout if init == "scene" else initial_layout(scene, int(run.summary["k"]),
+            layout = scene.layout if init == "scene" else start_layout(scene, int(run.summary["k"]),
                                                                           int(run.summary["seed"]), init)
             label = "scene layout" if init == "scene" else f"{run.name}:initial"
             layouts.append((label, Layout(layout.outlines).outlines))

@@ -104,14 +104,14 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     passes through: the start is not recorded and runs again on resume."""
     from mscap.design.pipeline import build_design
     from mscap.scene.sizing import with_layout
-    from mscap.geometry.initial import initial_layout
+    from mscap.design.starts import start_layout
     from mscap.design.optimizer import optimize
 
     release_freed_memory()  # what the previous start on this worker freed
     start, meter = time.perf_counter(), Meter()
     layout = None
     try:
-        layout = initial_layout(scene, config.k, config.seed, config.init)
+        layout = start_layout(scene, config.k, config.seed, config.init)
         design = build_design(with_layout(scene, layout))  # sized for its plates
         scene = design.scene  # its design poses (mscap.design.readback.design_scene)
         rule, kind, verdicts = PruneRule.from_settings(scene.multistart), score_kind(scene), []
@@ -195,13 +195,13 @@ def run_check(scene: Scene, record, ask: Callable | None = None):
     from a cold start on the finer mesh (the run's equilibria are gone). The master is
     asked first, as a start asks: a run beaten meanwhile stays unchecked."""
     from mscap.design.readback import design_scene
-    from mscap.geometry.initial import initial_layout
+    from mscap.design.starts import start_layout
     from mscap.geometry.layout import Layout
     from mscap.scene.sizing import with_layout
 
     release_freed_memory()
     meter = Meter()
-    start_scene = design_scene(with_layout(scene, initial_layout(scene, record.k, record.seed, record.init)))
+    start_scene = design_scene(with_layout(scene, start_layout(scene, record.k, record.seed, record.init)))
     checked = _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None,
                           read_back_estimate(start_scene), ask)
     # The larger of the run's peak (an earlier session's; NaN if not stored) and the check's here.

@@ -22,10 +22,10 @@ __all__ = ["ERROR_BOUND", "StartConfig", "RunSummary", "KSummary", "Selection", 
            "SELECTION_RULE_BOUND", "SELECTION_RULE_CALIBRATED", "CalibratedDesign", "by_calibration",
            "SCENE_START_INDEX", "start_index", "ranked", "design_of"]
 
-#: The ``init`` kinds the multi-start schedules, in order (:func:`configurations`: Lloyd
-#: starts first, then random ones, then the scene's own layout with ``scene_start``); the
-#: same as :data:`mscap.geometry.initial.LAYOUT_INITS`.
-MULTISTART_INITS = ("lloyd", "random", "scene")
+#: The ``init`` kinds the multi-start schedules (:func:`configurations`: sensitivity-map
+#: starts first, then Lloyd, then random ones, then the scene's own layout with
+#: ``scene_start``); the same as :data:`mscap.design.starts.START_INITS`.
+MULTISTART_INITS = ("lloyd", "random", "scene", "sensitivity")
 #: The start index of the scene-layout start (``[multistart] scene_start``): never a
 #: regular start's, since ``starts_per_k`` < 1000.
 SCENE_START_INDEX = 999
@@ -64,7 +64,9 @@ def configurations(scene: Scene) -> list[StartConfig]:
     """Every start of the scene's multi-start, ordered by k then index.
 
     For each k in ``k_min..k_max``, ``starts_per_k`` starts: the first
-    ``ceil(lloyd_fraction · starts_per_k)`` use Lloyd layouts, the rest random ones. Start
+    ``ceil(sensitivity_fraction · starts_per_k)`` sensitivity-map layouts, the next
+    ``ceil(lloyd_fraction · starts_per_k)`` (as many as are left) Lloyd layouts, the rest
+    random ones. Start
     ``index`` of ``k`` gets ``seed = multistart.seed · 10⁶ + k · 10³ + index``: a function
     of the scene and (k, index) only — never of the rank, the number of ranks or the order
     in which runs finish. With ``scene_start``, the k of the scene's own layout (if in
@@ -75,11 +77,17 @@ def configurations(scene: Scene) -> list[StartConfig]:
     n = ms.starts_per_k
     check_multistart(scene.path, ms)
     # round() first: 0.2 * 25 is 5.000000000000001 in floating point and must give 5.
-    n_lloyd = min(n, math.ceil(round(ms.lloyd_fraction * n, 9)))
+    n_sensitivity = min(n, math.ceil(round(ms.sensitivity_fraction * n, 9)))
+    n_lloyd = min(n - n_sensitivity, math.ceil(round(ms.lloyd_fraction * n, 9)))
+
+    def init(index: int) -> str:
+        if index < n_sensitivity:
+            return "sensitivity"
+        return "lloyd" if index < n_sensitivity + n_lloyd else "random"
+
     configs = []
     for k in range(ms.k_min, ms.k_max + 1):
-        configs += [StartConfig(k, ms.seed * 1_000_000 + k * 1000 + index, "lloyd" if index < n_lloyd else "random")
-                    for index in range(n)]
+        configs += [StartConfig(k, ms.seed * 1_000_000 + k * 1000 + index, init(index)) for index in range(n)]
         if ms.scene_start and k == scene.layout.k:
             configs.append(StartConfig(k, ms.seed * 1_000_000 + k * 1000 + SCENE_START_INDEX, "scene"))
     return configs
