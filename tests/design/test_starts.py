@@ -80,3 +80,22 @@ def test_a_scene_of_free_poses_has_nothing_to_read(tmp_path):
         start_layout(scene, 2, 0, "sensitivity")
     with pytest.raises(GeometryError, match="unknown init 'voronoi'"):
         start_layout(scene, 2, 0, "voronoi")
+
+
+def test_hot_spots_that_share_a_region_still_give_a_valid_layout():
+    """On pneumatic_quick the clusters' hot spots lie close together (the inflation and the
+    indent strain the same middle of the sheet): squares on them did not fit at any size
+    (the first multi-start with sensitivity starts failed them at k = 2 and 3). Each
+    cluster's plate then goes to its strongest triangle with room: valid layouts of
+    plates at least half the mean size, for every k and seed tried."""
+    from mscap.geometry.initial import plate_size_mm
+    from mscap.geometry.layout import check_layout
+
+    scene = load_scene("jobs/pneumatic_quick.toml")
+    smap = sensitivity_map(scene)
+    for k in (2, 3, 4):
+        for seed in (k * 1000, k * 1000 + 1):
+            layout = sensitivity_layout(scene, k, seed, smap)
+            check_layout(layout, scene.sheet_outline_mm, 2 * scene.min_gap_mm)
+            sides = [np.ptp(o[:, 0]) for o in layout.outlines]
+            assert layout.k == k and min(sides) >= 0.45 * plate_size_mm(scene)
