@@ -38,10 +38,12 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
 from mscap.design.terms import Term, soft_min
+from mscap.errors import DesignError
 from mscap.scene.calibration import NoiseModel, family_poses
 from mscap.scene.loader import check_optimizer, family_grid_counts
 from mscap.scene.settings import Scene
@@ -284,6 +286,16 @@ class ReconstructionBound(Term):
         """r_g (mm) per grid point."""
         return self._forward(np.asarray(capacitance_pF, dtype=float))[0]
 
+    def value(self, capacitance_pF: np.ndarray) -> float:
+        """The bound (mm), without its gradient."""
+        return self._soft_max(self.per_pose_mm(capacitance_pF))[0]
+
+    def _soft_max(self, r: np.ndarray) -> tuple[float, np.ndarray]:
+        """τ log mean exp(r/τ), about the maximum, and the weights exp((r − max)/τ)."""
+        high = r.max()
+        weight = np.exp((r - high) / self.tau_mm)
+        return float(high + self.tau_mm * np.log(weight.mean())), weight
+
     def _forward(self, c):
         fam = self.family
         f_rows, ref = _features(c, fam.reference_row)
@@ -298,11 +310,9 @@ class ReconstructionBound(Term):
 
     def value_and_gradient(self, capacitance_pF: np.ndarray) -> tuple[float, np.ndarray]:
         c = np.asarray(capacitance_pF, dtype=float)
-        fam, tau = self.family, self.tau_mm
+        fam = self.family
         r, (f_rows, ref, f, var, dvar_df, dvar_dref, jac, w, inv, e) = self._forward(c)
-        high = r.max()
-        weight = np.exp((r - high) / tau)
-        value = float(high + tau * np.log(weight.mean()))
+        value, weight = self._soft_max(r)
         g_e = weight / weight.sum() / (2 * r)  # ∂bound/∂e_g
         # e = tr(A I⁻¹): ∂e/∂I = −I⁻¹ A I⁻¹ =: −B (symmetric)
         b = g_e[:, None, None] * np.einsum("gpq,gqr,grs->gps", inv, fam.sensitivity, inv)
@@ -336,7 +346,8 @@ def _matrix_sign(x: np.ndarray, max_iterations: int = 200) -> np.ndarray:
         extra += settled
         if extra > 3:
             return x
-    raise ArithmeticError("the matrix sign iteration did not converge: a principal spread lies on min_spread")
+    raise DesignError("the map noise's subspace is undefined: a principal spread of the read-outs over the "
+                      "design grid lies on [calibration] min_spread (the sign iteration did not converge)")
 
 
 def _orthonormal(q: np.ndarray) -> np.ndarray:
@@ -395,6 +406,19 @@ class MapNoise(Term):
     def value(self, capacitance_pF: np.ndarray) -> float:
         return float(np.sqrt(self._squares(np.asarray(capacitance_pF, dtype=float)[None])[0].real.mean()))
 
+    @cached_property
+    def _samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The map's samples (design-independent): the first grid point of each row, each
+        grid point's sample, and the merged targets' Gram matrix (a sample's target is the
+        mean of its grid points': :func:`mscap.calibration.reconstruction.fit` merges
+        equal read-outs)."""
+        fam = self.family
+        if fam.target_gram is None:
+            raise ValueError("the design family has no targets' Gram matrix (made by design_family)")
+        rows, first, inverse = np.unique(fam.rows, return_index=True, return_inverse=True)
+        average = (inverse[None, :] == np.arange(len(rows))[:, None]) / np.bincount(inverse)[:, None]
+        return first, inverse, average @ fam.target_gram @ average.T
+
     def value_and_gradient(self, capacitance_pF: np.ndarray) -> tuple[float, np.ndarray]:
         c = np.asarray(capacitance_pF, dtype=float)
         fam = self.family
@@ -417,19 +441,13 @@ class MapNoise(Term):
     def _squares(self, c: np.ndarray) -> np.ndarray:
         """E_g ``(B, n_grid)`` of a batch of design-row capacitances ``(B, n_rows, k)``."""
         fam = self.family
-        if fam.target_gram is None:
-            raise ValueError("the design family has no targets' Gram matrix (made by design_family)")
+        first, inverse, gram = self._samples
         if fam.reference_row is None:
             f_rows, ref = c, None
         else:
             ref = c[:, fam.reference_row][:, None, :]
             f_rows = c / ref
-        f = f_rows[:, fam.rows]                                    # (B, n_grid, k)
-        # Grid points that are one pose share a row; the map merges them into one sample
-        # with the mean target (fit merges equal read-outs), the moments count each.
-        rows, first, inverse = np.unique(fam.rows, return_index=True, return_inverse=True)
-        average = (inverse[None, :] == np.arange(len(rows))[:, None]) / np.bincount(inverse)[:, None]
-        gram = average @ fam.target_gram @ average.T
+        f = f_rows[:, fam.rows]                 # (B, n_grid, k): the moments count every grid point
         var = reading_variance(f[:, first], ref, fam.noise)[0]    # (B, n, k) at the samples
         center = f.mean(axis=1, keepdims=True)
         std = np.sqrt(reading_variance(center, ref, fam.noise)[0]) if self.whitened else np.ones_like(center)

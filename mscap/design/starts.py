@@ -41,7 +41,8 @@ import numpy as np
 
 from mscap.errors import GeometryError
 from mscap.geometry import polygons as geometry
-from mscap.geometry.initial import LAYOUT_INITS, _fits, _valid, initial_layout, plate_size_mm
+from mscap.geometry.initial import (LAYOUT_INITS, initial_layout, plate_size_mm, square_fits, squares_at,
+                                    valid_layout)
 from mscap.geometry.layout import Layout
 
 if TYPE_CHECKING:
@@ -54,9 +55,9 @@ __all__ = ["SensitivityMap", "sensitivity_map", "sensitivity_layout", "start_lay
 START_INITS = LAYOUT_INITS + ("sensitivity",)
 #: The middle layer of the stack (dielectric between the two conductive layers).
 DIELECTRIC_LAYER = 2
-#: Shrinks by 10 % of the squares on the clusters' hot spots before each cluster's plate is
-#: moved to its strongest triangle with room instead (0.9⁷ ≈ half the mean plate size).
-HOT_SPOT_SHRINKS = 8
+#: Sizes (10 % apart) tried for the squares on the clusters' hot spots before each cluster's
+#: plate is moved to its strongest triangle with room instead (0.9⁷ ≈ half the mean plate size).
+HOT_SPOT_SIZES = 8
 
 _CACHE: dict[tuple, SensitivityMap] = {}
 
@@ -179,12 +180,9 @@ def sensitivity_layout(scene: Scene, k: int, seed: int, smap: SensitivityMap | N
     score = smap.area * strength**2
     sites = np.array([np.average(smap.points[labels == c], axis=0, weights=score[labels == c] + 1e-300)
                       for c in range(k)])
-    size = plate_size_mm(scene)
-    for _ in range(HOT_SPOT_SHRINKS):  # squares on the hot spots, smaller until they fit
-        layout = Layout(tuple(geometry.square(c, size) for c in sites))
-        if _valid(layout, scene, clearance):
-            return layout
-        size *= 0.9
+    layout = squares_at(scene, sites, clearance, HOT_SPOT_SIZES)  # on the hot spots, smaller until they fit
+    if layout is not None:
+        return layout
     # Hot spots too close for plates half the mean size: each cluster's plate on its
     # strongest triangle that leaves room, the clusters taken strongest first.
     order = np.argsort([-weight[labels == c].sum() for c in range(k)], kind="stable")
@@ -195,14 +193,14 @@ def sensitivity_layout(scene: Scene, k: int, seed: int, smap: SensitivityMap | N
             members = np.flatnonzero(labels == c)
             for point in np.vstack([sites[c:c + 1], smap.points[members[np.argsort(-score[members])]]]):
                 square = geometry.square(point, size)
-                if _fits(square, list(placed.values()), sheet, gap):
+                if square_fits(square, list(placed.values()), sheet, gap):
                     placed[c] = square
                     break
             else:
                 break
         if len(placed) == k:
             layout = Layout(tuple(placed[c] for c in range(k)))
-            if _valid(layout, scene, clearance):
+            if valid_layout(layout, scene, clearance):
                 return layout
         size *= 0.9
     raise GeometryError(f"no valid squares at the sensitivity sites of {scene.path} for k = {k}")

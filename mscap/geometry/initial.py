@@ -27,7 +27,8 @@ from mscap.geometry.layout import Layout, check_layout
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["LAYOUT_INITS", "initial_layout", "random_layout", "lloyd_layout", "lloyd_points", "plate_size_mm"]
+__all__ = ["LAYOUT_INITS", "initial_layout", "random_layout", "lloyd_layout", "lloyd_points", "plate_size_mm",
+           "squares_at", "square_fits", "valid_layout"]
 
 #: Every ``init`` :func:`initial_layout` accepts (``mscap optimize --init``); the
 #: multi-start schedules the seeded ones, :data:`mscap.service.selection.MULTISTART_INITS`.
@@ -39,7 +40,8 @@ def plate_size_mm(scene: Scene) -> float:
     return float(np.sqrt(np.abs(scene.layout.areas_mm2()).mean()))
 
 
-def _valid(layout: Layout, scene: Scene, clearance: float) -> bool:
+def valid_layout(layout: Layout, scene: Scene, clearance: float) -> bool:
+    """Does ``layout`` pass :func:`check_layout` with ``clearance × min_gap_mm``?"""
     try:
         check_layout(layout, scene.sheet_outline_mm, clearance * scene.min_gap_mm)
     except GeometryError:
@@ -47,7 +49,7 @@ def _valid(layout: Layout, scene: Scene, clearance: float) -> bool:
     return True
 
 
-def _fits(square: np.ndarray, placed: list, sheet: np.ndarray, gap: float) -> bool:
+def square_fits(square: np.ndarray, placed: list, sheet: np.ndarray, gap: float) -> bool:
     """Is a square inside the sheet by ``gap`` and ``gap`` away from the placed squares?"""
     if not geometry.points_in_polygon(square, sheet).all():
         return False
@@ -75,11 +77,11 @@ def random_layout(scene: Scene, k: int, seed: int, clearance: float = 2.0, attem
                 if centre is None:
                     break
                 square = geometry.square(centre, size)
-                if _fits(square, placed, sheet, gap):
+                if square_fits(square, placed, sheet, gap):
                     placed.append(square)
                     if len(placed) == k:
                         layout = Layout(tuple(placed))
-                        if _valid(layout, scene, clearance):
+                        if valid_layout(layout, scene, clearance):
                             return layout
                         break
             # stuck: restart this layout
@@ -109,14 +111,22 @@ def lloyd_points(sheet: np.ndarray, k: int, seed: int, iterations: int = 100, sa
 
 def lloyd_layout(scene: Scene, k: int, seed: int, clearance: float = 2.0) -> Layout:
     """Squares at the centroids of a seeded Lloyd relaxation, shrunk until valid."""
-    sites = lloyd_points(scene.sheet_outline_mm, k, seed)
+    layout = squares_at(scene, lloyd_points(scene.sheet_outline_mm, k, seed), clearance)
+    if layout is None:
+        raise GeometryError(f"no valid squares at the Lloyd centroids of {scene.path} for k = {k}")
+    return layout
+
+
+def squares_at(scene: Scene, sites: np.ndarray, clearance: float = 2.0, sizes: int = 60) -> Layout | None:
+    """Squares of the scene's mean plate size centred on ``sites`` ``(k, 2)``, shrunk by
+    10 % until the layout is valid, trying at most ``sizes`` sizes (``None`` if none is)."""
     size = plate_size_mm(scene)
-    for _ in range(60):
+    for _ in range(sizes):
         layout = Layout(tuple(geometry.square(c, size) for c in sites))
-        if _valid(layout, scene, clearance):
+        if valid_layout(layout, scene, clearance):
             return layout
         size *= 0.9
-    raise GeometryError(f"no valid squares at the Lloyd centroids of {scene.path} for k = {k}")
+    return None
 
 
 def initial_layout(scene: Scene, k: int | None, seed: int, init: str) -> Layout:
