@@ -11,7 +11,7 @@ from __future__ import annotations
 
 __all__ = ["MscapError", "SceneError", "GeometryError", "MeshError", "LinearSolveError", "ElasticError",
            "AdjointError", "ElectrostaticError", "ReadoutError", "DesignError", "StoreError", "StoreFullError",
-           "CalibrationError", "ParameterError"]
+           "CalibrationError", "FabricationError", "ParameterError"]
 
 
 class MscapError(Exception):
@@ -106,3 +106,8 @@ class ParameterError(ValueError):
     def __init__(self, parameter: str, message: str):
         self.parameter = parameter
         super().__init__(message)
+
+
+class FabricationError(MscapError):
+    """A design cannot be routed or written under its scene's ``[fabrication]`` rules
+    (a blocked capacitor, plates closer than the clearance, pads that do not fit)."""

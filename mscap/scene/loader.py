@@ -33,16 +33,18 @@ from mscap.scene.settings import (BALL_EDGE_RATIO, DEFAULT_FAMILY_COUNT, DEFAULT
                                   MAX_CALIBRATE_SEEDS, MAX_SEED, MAX_SLABS, MAX_STARTS_PER_K, MIN_LENGTH_MM,
                                   PETSC_TYPES, POSE_KINDS,
                                   POSE_NAME_PATTERN, SKINNING_METHODS, YOUNGS_MODULUS_MPA, ElasticSettings, Layer,
-                                  Material, MeshSettings, MultistartSettings, OptimizerSettings, Scene, auto_slabs)
+                                  CONNECTOR_EDGES, FabricationSettings, Material, MeshSettings, MultistartSettings,
+                                  OptimizerSettings, Scene, auto_slabs)
 
-__all__ = ["load_scene", "check_optimizer", "check_multistart", "check_designable", "family_grid_counts",
+__all__ = ["load_scene", "check_optimizer", "check_multistart", "check_fabrication", "routing_grid_mm", "check_designable", "family_grid_counts",
            "read_multistart", "select_poses", "with_overrides"]
 
 log = logging.getLogger(__name__)
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Read and validate a scene file.
+def load_scene(path: str | Path, source: str | None = None) -> Scene:
+    """Read and validate a scene file (or its text ``source``, e.g. the one a results file
+    stores, with ``path`` naming where it came from).
 
     Raises
     ------
@@ -50,7 +52,7 @@ def load_scene(path: str | Path) -> Scene:
         On any unreadable, unknown, missing, mistyped or out-of-range entry.
     """
     path = str(path)
-    source = _read_text(path)
+    source = _read_text(path) if source is None else source
     try:
         data = tomllib.loads(source)
     except tomllib.TOMLDecodeError as exc:
@@ -103,12 +105,14 @@ def load_scene(path: str | Path) -> Scene:
     _check_family_balls(path, poses, mesh, elastic, calibration)
     optimizer = _objective_defaults(optimizer, data.get("optimizer", {}), calibration)
     check_optimizer(path, optimizer, calibration)
+    fabrication = _read_dataclass(root.table("fabrication", required=False), FabricationSettings)
+    check_fabrication(path, fabrication, sheet)
     root.finish()
     sheet.setflags(write=False)
     return Scene(path=path, name=name, description=description, sheet_outline_mm=sheet,
                  layers=layers, layout=layout, min_gap_mm=min_gap, mesh=mesh, poses=poses, elastic=elastic,
                  optimizer=optimizer, multistart=multistart, petsc_options=petsc, source=source,
-                 calibration=calibration)
+                 calibration=calibration, fabrication=fabrication)
 
 
 def _read_text(path: str) -> str:
@@ -594,6 +598,64 @@ def family_grid_counts(path: str, optimizer: OptimizerSettings, calibration: Cal
 PRUNE_RULES = ("rungs", "envelope")
 #: Steps between the envelope rule's checkpoints for ``--prune envelope``.
 ENVELOPE_EVERY = 5
+
+
+#: Cells of a routing grid (``[fabrication] grid_mm``): 4 million bytes per boolean mask; the
+#: quick scenes route on 10-30 thousand.
+MAX_GRID_CELLS = 4_000_000
+
+
+def routing_grid_mm(fabrication: FabricationSettings) -> float:
+    """The routing grid's cell (mm): ``grid_mm``, or the pad pitch over the smallest
+    whole number, at least 5, that makes it at most half the trace width (so the pad axes
+    fall on cell centres: 2.54 / 6 = 0.423 mm by default)."""
+    if fabrication.grid_mm > 0:
+        return fabrication.grid_mm
+    return fabrication.pad_pitch_mm / max(5, math.ceil(fabrication.pad_pitch_mm / (fabrication.trace_width_mm / 2)))
+
+
+def check_fabrication(path: str, fabrication: FabricationSettings, sheet: np.ndarray) -> None:
+    """Check ``[fabrication]``: lengths within [1 µm, 10 m] (the optional ones may be 0),
+    a fillet a lead can hold, pads wider than their leads and apart by the clearance, a
+    routing grid the machine can hold (:data:`MAX_GRID_CELLS`)."""
+    f = fabrication
+    for key in ("trace_width_mm", "clearance_mm", "edge_distance_mm", "pad_width_mm", "pad_length_mm",
+                "pad_pitch_mm", "min_radius_mm", "mask_margin_mm", "grid_mm"):
+        value = getattr(f, key)
+        optional = key in ("min_radius_mm", "mask_margin_mm", "grid_mm")
+        if optional and value == 0:
+            continue
+        if not MIN_LENGTH_MM <= value <= MAX_LENGTH_MM:
+            raise SceneError(path, f"fabrication.{key}", f"must lie in [{MIN_LENGTH_MM:g}, {MAX_LENGTH_MM:g}] mm"
+                             f"{' (or 0)' if optional else ''}, got {value!r}")
+    if f.min_radius_mm > f.trace_width_mm / 2:
+        raise SceneError(path, "fabrication.min_radius_mm", f"must be at most half the trace width "
+                         f"({f.trace_width_mm / 2:g} mm): a lead {f.trace_width_mm:g} mm wide cannot bend with a "
+                         f"{f.min_radius_mm:g} mm fillet on both sides, got {f.min_radius_mm!r}")
+    if f.pad_width_mm < f.trace_width_mm:
+        raise SceneError(path, "fabrication.pad_width_mm", f"must be at least the trace width "
+                         f"({f.trace_width_mm:g} mm), got {f.pad_width_mm!r}")
+    if f.pad_pitch_mm < f.pad_width_mm + f.clearance_mm:
+        raise SceneError(path, "fabrication.pad_pitch_mm", f"must be at least pad_width_mm + clearance_mm "
+                         f"= {f.pad_width_mm + f.clearance_mm:g} mm (neighbouring pads are other nets), "
+                         f"got {f.pad_pitch_mm!r}")
+    _one_of(path, "fabrication.connector_edge", f.connector_edge, CONNECTOR_EDGES)
+    if not 1 <= f.assignments <= MAX_STARTS_PER_K:
+        raise SceneError(path, "fabrication.assignments",
+                         f"must be in 1..{MAX_STARTS_PER_K} (slot assignments to route), got {f.assignments!r}")
+    for key in ("rows", "columns"):
+        if getattr(f, key) > MAX_CAPACITORS:
+            raise SceneError(path, f"fabrication.{key}", f"must be in 0..{MAX_CAPACITORS}, got {getattr(f, key)!r}")
+    h = routing_grid_mm(f)
+    if f.grid_mm > f.trace_width_mm / 2:
+        raise SceneError(path, "fabrication.grid_mm", f"must be at most half the trace width "
+                         f"({f.trace_width_mm / 2:g} mm), got {f.grid_mm!r}")
+    extent = np.ptp(sheet, axis=0)
+    cells = float(np.prod(np.ceil(extent / h) + 1))
+    if cells > MAX_GRID_CELLS:
+        key = "fabrication.grid_mm" if f.grid_mm else "fabrication.trace_width_mm"
+        raise SceneError(path, key, f"a {h:g} mm routing grid over the {extent[0]:g} x {extent[1]:g} mm sheet has "
+                         f"{cells:.3g} cells, more than {MAX_GRID_CELLS:,}; set a coarser fabrication.grid_mm")
 
 
 def check_multistart(path: str, multistart: MultistartSettings) -> None:

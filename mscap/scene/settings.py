@@ -23,7 +23,7 @@ from mscap.scene.calibration import MAX_FAMILY_POSES, MAX_NOISE_RUNS, MAX_SEED, 
 
 __all__ = [
     "EPSILON0_PF_PER_MM", "Material", "Layer", "MeshSettings", "ElasticSettings", "auto_slabs", "OptimizerSettings",
-    "MultistartSettings", "Scene", "LAYER_KINDS", "POSE_KINDS", "HESSIAN_MODES", "ELASTIC_MESHES",
+    "MultistartSettings", "FabricationSettings", "CONNECTOR_EDGES", "Scene", "LAYER_KINDS", "POSE_KINDS", "HESSIAN_MODES", "ELASTIC_MESHES",
     "SKINNING_METHODS", "DISTANCES", "DESIGN_POSES", "DEFAULT_FAMILY_COUNT", "MAX_STARTS_PER_K",
     "MAX_SCENE_BYTES", "MAX_LENGTH_MM", "MIN_LENGTH_MM", "LAYER_THICKNESS_MM", "YOUNGS_MODULUS_MPA",
     "MAX_RELATIVE_PERMITTIVITY", "STRETCH_RANGE", "MAX_SLABS", "MAX_CAPACITORS", "MAX_OUTLINE_VERTICES",
@@ -359,6 +359,39 @@ class MultistartSettings:
     scene_start: bool = False
 
 
+#: ``[fabrication] connector_edge``: the sheet side the pads sit on (of its bounding box);
+#: ``"auto"`` tries each and keeps the cheapest routing (:mod:`mscap.fabrication.router`).
+CONNECTOR_EDGES = ("auto", "bottom", "left", "right", "top")
+
+
+@dataclass(frozen=True)
+class FabricationSettings:
+    """Design rules of the stencils (scene table ``[fabrication]``; docs/fabrication.md),
+    in mm. Defaults a desktop stencil cutter makes in 0.1 mm Mylar: leads
+    ``trace_width_mm`` wide, ``clearance_mm`` from every other net of their layer,
+    ``edge_distance_mm`` from the sheet edge, bends and junctions filleted with at least
+    ``min_radius_mm`` (≤ half the trace width). The connector: ``pad_width_mm`` ×
+    ``pad_length_mm`` pads every ``pad_pitch_mm`` (0.1 inch) on ``connector_edge``, each
+    masked by a square ``mask_margin_mm`` larger on every side. ``rows``/``columns``: the
+    array (0: :func:`mscap.readout.array.grid_array`'s); ``assignments``: slot
+    assignments the router tries; ``grid_mm``: the routing grid (0: a fifth of the pad
+    pitch, at most half the trace width)."""
+
+    trace_width_mm: float = 1.0
+    clearance_mm: float = 1.0
+    edge_distance_mm: float = 1.0
+    min_radius_mm: float = 0.25
+    pad_width_mm: float = 1.27
+    pad_length_mm: float = 3.0
+    pad_pitch_mm: float = 2.54
+    mask_margin_mm: float = 0.5
+    connector_edge: str = "auto"
+    rows: int = 0
+    columns: int = 0
+    assignments: int = 24
+    grid_mm: float = 0.0
+
+
 @dataclass(frozen=True)
 class Scene:
     """A loaded, validated scene."""
@@ -378,6 +411,7 @@ class Scene:
     petsc_options: tuple[tuple[str, str], ...]
     source: str
     calibration: CalibrationSettings | None = None
+    fabrication: FabricationSettings = FabricationSettings()
     #: Set by :func:`mscap.design.readback.design_scene` when the poses are design poses from the
     #: calibration family (a :class:`mscap.design.readback.DesignFamily`).
     design_family: object = None

@@ -1,0 +1,103 @@
+"""Route designs and write their stencils (``mscap fabricate``), and how the router's cost
+grows with k (docs/fabrication.md).
+
+    .venv/bin/python benchmarks/fabrication.py --design jobs/wrist_quick.toml=out/wrist.h5 \
+        --design jobs/grid3x3.toml=layout --figures docs/fabrication
+    .venv/bin/python benchmarks/fabrication.py --scaling 2 3 4 5
+
+``--design SCENE=RESULTS.h5`` routes the results file's chosen design under the scene's
+``[fabrication]`` rules (``SCENE=layout``: the scene's own layout); one markdown row each:
+the array, the connector edge, lead length, row/column overlaps and their parallel-plate
+rest capacitance against the plates', route and write times. ``--scaling N ...``: N × N
+grids of 12 mm plates at a 20 mm pitch, k = N², the same 24 slot assignments each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mscap.fabrication.report import write_fabrication
+from mscap.fabrication.router import route
+from mscap.geometry.layout import grid_layout
+from mscap.scene import load_scene
+from mscap.scene.settings import FabricationSettings
+from mscap.service.designs import read_design
+from mscap.service.store import read_store
+
+
+def fabricate(spec: str, figures: Path | None) -> str:
+    scene_path, source = spec.split("=", 1)
+    scene = load_scene(scene_path)
+    if source == "layout":
+        outlines, label = scene.layout.outlines, "scene layout"
+    else:
+        with read_store(source) as store:
+            design = read_design(store)
+        outlines, label = design.outlines, design.label
+    started = time.perf_counter()
+    routing = route(outlines, scene.sheet_outline_mm, scene.fabrication)
+    routed = time.perf_counter() - started
+    tmp = Path(tempfile.mkdtemp())
+    try:
+        started = time.perf_counter()
+        document = write_fabrication(routing, tmp / "out", scene, label)
+        written = time.perf_counter() - started
+        if figures is not None:
+            figures.mkdir(parents=True, exist_ok=True)
+            shutil.copy(tmp / "out" / "preview.png", figures / f"fabrication_{scene.name}.png")
+    finally:
+        shutil.rmtree(tmp)
+    plates = [s["plate_capacitance_pF"] for s in document["array"]["slots"]]
+    share = max(s["lead_share"] for s in document["array"]["slots"])
+    checks = document["design_rule_check"]["layers"]
+    clearance = min(v["min_clearance_mm"] for v in checks.values() if v["min_clearance_mm"] is not None)
+    return (f"| {scene.name} | {label} | {len(outlines)} | {routing.array.rows} x {routing.array.columns} | "
+            f"{routing.edge} | {routing.length_mm:.0f} | {len(document['overlaps'])} / "
+            f"{document['overlap_mm2']:.2f} | {document['overlap_capacitance_pF']:.3f} | "
+            f"{min(plates):.0f}-{max(plates):.0f} | {100 * share:.2f} % | {clearance:.2f} | "
+            f"{routing.assignments_tried} | {routed:.1f} | {written:.1f} |")
+
+
+def scaling(sizes: list[int]) -> None:
+    print("| k | sheet (mm) | array | routed / tried assignments | lead length (mm) | overlap (mm2) | "
+          "route (s) | per assignment (s) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for n in sizes:
+        side = 20.0 * n + 30.0
+        layout = grid_layout("square", n, n, 12.0, (20.0, 20.0), (side / 2, side / 2 + 5.0), 1.0)
+        sheet = np.array([[0, 0], [side, 0], [side, side], [0, side]])
+        started = time.perf_counter()
+        routing = route(layout.outlines, sheet, FabricationSettings(connector_edge="bottom"))
+        elapsed = time.perf_counter() - started
+        print(f"| {n * n} | {side:.0f} | {routing.array.rows} x {routing.array.columns} | "
+              f"{routing.assignments_tried - len(routing.rejected)} / {routing.assignments_tried} | "
+              f"{routing.length_mm:.0f} | {routing.overlap_mm2:.2f} | {elapsed:.1f} | "
+              f"{elapsed / routing.assignments_tried:.2f} |", flush=True)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--design", action="append", default=[], metavar="SCENE=RESULTS.h5|layout")
+    parser.add_argument("--figures", type=Path, help="copy each preview to DIR/fabrication_<scene>.png")
+    parser.add_argument("--scaling", type=int, nargs="*", metavar="N")
+    args = parser.parse_args(argv)
+    if args.design:
+        print("| scene | design | k | array | connector | leads (mm) | overlaps / mm2 | overlap pF | plates pF "
+              "(parallel plate) | largest lead share | clearance (mm) | assignments | route (s) | write + check (s) |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for spec in args.design:
+            print(fabricate(spec, args.figures), flush=True)
+    if args.scaling:
+        scaling(args.scaling)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
