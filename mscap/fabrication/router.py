@@ -13,16 +13,21 @@ capacitor's plate, the overlap adds to that reading c_ij: the router counts thos
 (which capacitor sits in which row and column) and, with ``connector_edge = "auto"``, the
 edge.
 
-One net at a time: Dijkstra on the routing grid (:mod:`mscap.fabrication.grid`) grows a
-tree from the pad to the nearest unjoined plate until every plate is joined; each path is
-then pulled straight wherever the straight lead keeps its clearance and crosses no more of
-the other layer. Leads are the centre lines buffered by half the trace width with round
-joins; each net is closed by ``min_radius_mm`` (fillets at bends and junctions).
+One layer at a time, one net at a time, on the routing grid
+(:mod:`mscap.fabrication.grid`): first every net of the layer joins its own plates
+(Dijkstra from the plate nearest its pad to the next nearest, until all are joined),
+then each pad is joined to its net, so that a pad's lead goes round the other nets'
+rows of plates instead of cutting one. Each path is pulled straight wherever the straight
+lead keeps its clearance and crosses no more of the other layer
+(:mod:`mscap.fabrication.leads`). A pad still waiting keeps a short stub straight inward
+free, and the strip in front of it costs (:data:`RAY_WEIGHT`); lanes beside other nets'
+plates cost as wide as the leads still to come need (:data:`NEAR_WEIGHT`). Leads are the
+centre lines buffered by half the trace width with round joins; each net is closed by
+``min_radius_mm`` where leads bend and meet (fillets).
 """
 
 from __future__ import annotations
 
-import itertools
 import logging
 import time
 from dataclasses import dataclass, field
@@ -30,16 +35,19 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 from shapely import affinity
-from shapely.geometry import LineString, Point, Polygon, box
+from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import unary_union
 
 from mscap.errors import FabricationError
+from mscap.fabrication.connector import EDGE_ROTATION, connector_pads, slot_assignments
 from mscap.fabrication.grid import Grid
+from mscap.fabrication.leads import lead_outline, pull_straight, trim_path
 from mscap.readout.array import CapacitorArray, grid_array
 from mscap.scene.loader import routing_grid_mm
 from mscap.scene.settings import FabricationSettings
 
-__all__ = ["OVERLAP_WEIGHT_MM", "RAY_WEIGHT", "NEAR_WEIGHT", "LAYERS", "Net", "Routing", "route", "slot_assignments", "connector_pads"]
+__all__ = ["OVERLAP_WEIGHT_MM", "RAY_WEIGHT", "NEAR_WEIGHT", "STUB_PITCHES", "LAYERS", "Net", "Routing", "route",
+           "slot_assignments", "connector_pads"]
 
 log = logging.getLogger(__name__)
 
@@ -62,8 +70,6 @@ STUB_PITCHES = 2
 LAYERS = ("bottom", "top")
 # Slot assignments tried on every edge before the budget goes to the best one.
 _FIRST_PER_EDGE = 5
-# Edge frames: the rotation (degrees) that takes the named sheet side to the bottom.
-_EDGE_ROTATION = {"bottom": 0.0, "left": 90.0, "right": -90.0, "top": 180.0}
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,103 +144,6 @@ class Routing:
         return self.length_mm + OVERLAP_WEIGHT_MM * self.overlap_mm2
 
 
-def slot_assignments(centres: np.ndarray, rows: int, columns: int, count: int, seed: int = 0) -> list[tuple]:
-    """Up to ``count`` distinct slot assignments of capacitors at ``centres`` (k, 2; the
-    edge frame, connector below): the read-out's default (capacitor order, row by row),
-    rows as bands along the connector (row 0 nearest, then farthest; columns left to right,
-    then right to left) and each one's transpose (columns as bands), then seeded random
-    ones."""
-    k = len(centres)
-    slots = [(i // columns, i % columns) for i in range(rows * columns)]
-    out: list[tuple] = []
-
-    def add(candidate):  # candidate[c]: the slot of capacitor c
-        candidate = tuple(candidate)
-        if len(set(candidate)) == k and candidate not in out:
-            out.append(candidate)
-
-    def filled(order):  # capacitor order[t] takes slot t, row by row
-        candidate = [None] * k
-        for t, c in enumerate(order):
-            candidate[c] = slots[t]
-        return candidate
-
-    add(slots[:k])
-    # Banded: rows as bands along the connector (near to far, then far to near: the
-    # outermost detour belongs to the leftmost pad), columns left to right or back; then
-    # the transpose, columns as bands.
-    for far_first, mirrored in ((False, False), (True, False), (False, True), (True, True)):
-        y = -centres[:, 1] if far_first else centres[:, 1]
-        x = -centres[:, 0] if mirrored else centres[:, 0]
-        by_y = np.argsort(y, kind="stable")
-        add(filled(itertools.chain.from_iterable(sorted(by_y[b:b + columns], key=lambda c: x[c])
-                                                 for b in range(0, k, columns))))
-        by_x = np.argsort(x, kind="stable")
-        transposed = [None] * k
-        for t, c in enumerate(itertools.chain.from_iterable(sorted(by_x[b:b + rows], key=lambda c: y[c])
-                                                             for b in range(0, k, rows))):
-            transposed[c] = (t % rows, t // rows)
-        add(transposed)
-    rng = np.random.default_rng(seed)
-    for _ in range(20 * count):
-        if len(out) >= count:
-            break
-        add(slots[s] for s in rng.permutation(rows * columns)[:k])
-    return out[:count]
-
-
-def connector_pads(sheet: Polygon, plates: list[Polygon], rules: FabricationSettings, count: int,
-                   edge: str) -> tuple[list[Polygon], list[Polygon], np.ndarray]:
-    """``count`` pads on the ``edge`` side of the sheet, in lead order, as close to that
-    edge as the rules allow (at most a pad length further in) and as central as the plates
-    allow: pads, masks and each pad's inner end (where its lead leaves it).
-
-    Raises
-    ------
-    FabricationError
-        No place on that side holds the pads ``edge_distance_mm`` inside the sheet and
-        ``clearance_mm`` from every plate.
-    """
-    f = rules
-    angle = _EDGE_ROTATION[edge]
-    turned = affinity.rotate(sheet, angle, origin=(0, 0))
-    inside = turned.buffer(-f.edge_distance_mm, join_style="mitre")
-    obstacles = unary_union([affinity.rotate(p, angle, origin=(0, 0)) for p in plates]).buffer(f.clearance_mm)
-    minx, miny, maxx, maxy = turned.bounds
-    width = (count - 1) * f.pad_pitch_mm + f.pad_width_mm
-    if inside.is_empty or width > maxx - minx - 2 * f.edge_distance_mm:
-        raise FabricationError(f"fabrication.pad_pitch_mm: {count} pads every {f.pad_pitch_mm:g} mm need "
-                               f"{width:.4g} mm along the {edge} edge; the sheet is {maxx - minx:.4g} mm wide there")
-    step = routing_grid_mm(f)
-    middle = 0.5 * (minx + maxx) - 0.5 * (count - 1) * f.pad_pitch_mm
-    shifts = np.arange(0.0, 0.5 * (maxx - minx) + step, step)
-    shifts = np.column_stack([shifts, -shifts]).ravel()[1:]
-    shapely.prepare(inside)
-    shapely.prepare(obstacles)
-    for y0 in np.arange(miny + f.edge_distance_mm, miny + f.edge_distance_mm + f.pad_length_mm + 1e-9, step):
-        for shift in shifts:
-            x0 = middle + shift
-            row = box(x0 - 0.5 * f.pad_width_mm, y0, x0 + (count - 1) * f.pad_pitch_mm + 0.5 * f.pad_width_mm,
-                      y0 + f.pad_length_mm)
-            if inside.contains(row) and not obstacles.intersects(row):
-                back = -angle
-                pads, masks, ends = [], [], []
-                for t in range(count):
-                    x = x0 + t * f.pad_pitch_mm
-                    pad = box(x - 0.5 * f.pad_width_mm, y0, x + 0.5 * f.pad_width_mm, y0 + f.pad_length_mm)
-                    pads.append(affinity.rotate(pad, back, origin=(0, 0)))
-                    masks.append(affinity.rotate(pad.buffer(f.mask_margin_mm, join_style="mitre")
-                                                 if f.mask_margin_mm else pad, back, origin=(0, 0)))
-                    end = affinity.rotate(Point(x, y0 + f.pad_length_mm - 0.5 * f.pad_width_mm), back, origin=(0, 0))
-                    ends.append((end.x, end.y))
-                return pads, masks, np.array(ends)
-    nearest = min(range(len(plates)), key=lambda c: affinity.rotate(plates[c], angle, origin=(0, 0)).bounds[1])
-    raise FabricationError(f"fabrication.connector_edge: {count} pads ({width:.4g} mm wide, "
-                           f"{f.pad_length_mm:g} mm long) fit nowhere along the {edge} edge "
-                           f"{f.edge_distance_mm:g}-{f.edge_distance_mm + f.pad_length_mm:g} mm inside the sheet and {f.clearance_mm:g} mm from every plate "
-                           f"(capacitor {nearest} is in the way); choose another connector_edge")
-
-
 def route(outlines, sheet_outline: np.ndarray, rules: FabricationSettings, progress=None) -> Routing:
     """Route the plates ``outlines`` (k arrays, mm) on the sheet under ``rules``: the
     cheapest (:attr:`Routing.cost`) routing over the slot assignments and edges tried.
@@ -261,7 +170,7 @@ def route(outlines, sheet_outline: np.ndarray, rules: FabricationSettings, progr
         except FabricationError as exc:
             failures.append(str(exc))
             continue
-        centres = np.array([affinity.rotate(p.centroid, _EDGE_ROTATION[edge], origin=(0, 0)).coords[0]
+        centres = np.array([affinity.rotate(p.centroid, EDGE_ROTATION[edge], origin=(0, 0)).coords[0]
                             for p in plates])
         queues[edge] = ((pads, masks, ends), slot_assignments(centres, array.rows, array.columns, rules.assignments))
 
@@ -489,12 +398,12 @@ def _route_net(ctx: _Context, name: str, layer: str, lead: int, nets: dict, mask
         end = int(targets[t][np.argmin(dist[targets[t]])])
         cells = Grid.path(pred, end)
         goal = unary_union([ctx.plates[c] for c in own]) if t == "plates" else ctx.plates[t]
-        points = _trim(grid.points(cells), unary_union(joined), goal)
-        paths.append(_pull(points, forbidden, allowed, other_geometry, f))
+        points = trim_path(grid.points(cells), unary_union(joined), goal)
+        paths.append(pull_straight(points, forbidden, allowed, other_geometry, f))
         joined.append(goal)
         tree = np.union1d(np.union1d(tree, cells), targets[t])
         waiting.pop(i)
-    leads = [LineString(p).buffer(half, quad_segs=8) for p in paths if len(p) > 1]
+    leads = [lead_outline(p, f) for p in paths if len(p) > 1]
     body = unary_union(([pad] if stage == "pad" else []) + [ctx.plates[c] for c in own] + leads)
     if f.min_radius_mm > 0 and leads:  # fillets where leads bend and meet pads and plates, not plate corners
         r = f.min_radius_mm
@@ -511,51 +420,7 @@ def _lead_index(name: str, nets: dict) -> int:
 
 
 def _lead_polygons(net: Net, f: FabricationSettings) -> list:
-    return [LineString(p).buffer(0.5 * f.trace_width_mm, quad_segs=8) for p in net.paths if len(p) > 1]
-
-
-def _trim(points: np.ndarray, start, end) -> np.ndarray:
-    """Drop the leading points inside the conductor a path leaves (but its last one there)
-    and the trailing points inside the plate it reaches (but its first one there)."""
-    inside_start = shapely.contains_xy(start, points[:, 0], points[:, 1])
-    inside_end = shapely.contains_xy(end, points[:, 0], points[:, 1])
-    first = 0
-    while first + 1 < len(points) and inside_start[first + 1]:
-        first += 1
-    last = len(points) - 1
-    while last - 1 > first and inside_end[last - 1]:
-        last -= 1
-    return points[first:last + 1]
-
-
-def _pull(points: np.ndarray, forbidden, allowed, other, f: FabricationSettings) -> np.ndarray:
-    """The path with every run of points replaced by a straight lead where that lead
-    keeps ``clearance_mm`` from ``forbidden``, stays in ``allowed`` and lies over no more
-    of ``other`` (the other layer) than the run it replaces."""
-    half = 0.5 * f.trace_width_mm + 1e-3
-    keep_out = forbidden.buffer(f.clearance_mm, quad_segs=8) if not forbidden.is_empty else None
-    if keep_out is not None:
-        shapely.prepare(keep_out)
-    shapely.prepare(allowed)
-
-    def clear(a, b):
-        lead = LineString(points[[a, b]]).buffer(half, quad_segs=4)
-        if not allowed.contains(lead) or (keep_out is not None and keep_out.intersects(lead)):
-            return False
-        if other is None:
-            return True
-        before = LineString(points[a:b + 1]).buffer(half, quad_segs=4).intersection(other).area
-        return lead.intersection(other).area <= before + 1e-6
-
-    out = [0]
-    a = 0
-    while a < len(points) - 1:
-        b = a + 1
-        while b + 1 < len(points) and clear(a, b + 1):
-            b += 1
-        out.append(b)
-        a = b
-    return points[out]
+    return [lead_outline(p, f) for p in net.paths if len(p) > 1]
 
 
 def _blocked_message(ctx: _Context, name: str, layer: str, c: int, dist: np.ndarray, forbidden) -> str:

@@ -21,7 +21,7 @@ from shapely.geometry import Polygon, box
 from shapely.ops import unary_union
 
 from mscap.errors import FabricationError
-from mscap.fabrication.router import LAYERS, Routing
+from mscap.fabrication.router import Routing
 
 __all__ = ["REGISTRATION_OFFSET_MM", "registration_marks", "layer_regions", "write_dxf", "write_svg",
            "read_stencil", "regions"]

@@ -9,7 +9,8 @@ import pytest
 from shapely.geometry import Point, Polygon
 
 from mscap.errors import FabricationError
-from mscap.fabrication.router import connector_pads, route, slot_assignments
+from mscap.fabrication.connector import connector_pads, slot_assignments
+from mscap.fabrication.router import route
 from mscap.geometry.polygons import square
 from mscap.scene.settings import FabricationSettings
 
@@ -125,3 +126,19 @@ def test_a_plate_enclosed_by_another_is_named_with_where_it_is_blocked():
     assert "next to capacitor 0" in message
     x, y = map(float, message.split(" mm short of it, at (")[1].split(")")[0].split(", "))
     assert not Polygon(u).convex_hull.contains(Point(x, y))  # nothing gets into the U
+
+
+def test_a_four_by_four_grid_routes_its_rows_round_each_other():
+    # The case that shaped the router: 16 plates 8 mm apart. Before plates were joined net
+    # by net first, pads kept a stub and lanes beside plates were costed, no assignment of
+    # 24 routed (docs/fabrication.md).
+    plates = grid_plates(4, 4, 12.0, 20.0, centre=(55.0, 60.0))
+    sheet = np.array([[0, 0], [110, 0], [110, 110], [0, 110.0]])
+    routing = route(plates, sheet, FabricationSettings(connector_edge="bottom", assignments=2))
+    assert (routing.array.rows, routing.array.columns) == (4, 4)
+    for layer in ("bottom", "top"):
+        nets = routing.layer(layer)
+        for a, net in enumerate(nets):
+            assert net.conductor.geom_type == "Polygon" and len(net.capacitors) == 4
+            for other in nets[a + 1:]:
+                assert net.conductor.distance(other.conductor) >= RULES.clearance_mm - 1e-3

@@ -18,10 +18,10 @@ from shapely.geometry import Polygon, box
 from shapely.ops import unary_union
 
 from mscap.errors import FabricationError
-from mscap.fabrication.check import check_layer, check_stencils
+from mscap.fabrication.check import check_layer
 from mscap.fabrication.report import FABRICATION_FILES, write_fabrication
 from mscap.fabrication.router import route
-from mscap.fabrication.stencil import read_stencil, regions
+from mscap.fabrication.stencil import read_stencil
 from mscap.scene import load_scene
 from mscap.scene.settings import EPSILON0_PF_PER_MM, FabricationSettings
 from tests.conftest import SMALL_SCENE, to_toml
