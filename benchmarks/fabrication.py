@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mscap.errors import FabricationError
 from mscap.fabrication.report import write_fabrication
 from mscap.fabrication.router import route
 from mscap.geometry.layout import grid_layout
@@ -74,7 +75,12 @@ def scaling(sizes: list[int]) -> None:
         layout = grid_layout("square", n, n, 12.0, (20.0, 20.0), (side / 2, side / 2 + 5.0), 1.0)
         sheet = np.array([[0, 0], [side, 0], [side, side], [0, side]])
         started = time.perf_counter()
-        routing = route(layout.outlines, sheet, FabricationSettings(connector_edge="bottom"))
+        try:
+            routing = route(layout.outlines, sheet, FabricationSettings(connector_edge="bottom"))
+        except FabricationError as exc:
+            print(f"| {n * n} | {side:.0f} | {n} x {n} | 0 / 24 | no route: {str(exc)[:120]}… | | "
+                  f"{time.perf_counter() - started:.1f} | |", flush=True)
+            continue
         elapsed = time.perf_counter() - started
         print(f"| {n * n} | {side:.0f} | {routing.array.rows} x {routing.array.columns} | "
               f"{routing.assignments_tried - len(routing.rejected)} / {routing.assignments_tried} | "

@@ -27,6 +27,9 @@ def add_parser(sub) -> None:
     p.add_argument("--which", choices=("final", "initial"), default="final", help="which layout of the run")
     p.add_argument("--rows", type=int, metavar="M", help="array rows (default: ceil(sqrt(k)))")
     p.add_argument("--columns", type=int, metavar="N", help="array columns (default: ceil(k / rows))")
+    p.add_argument("--wiring", metavar="FABRICATION_JSON",
+                   help="the array as `mscap fabricate` routed it (its fabrication.json): which capacitor sits "
+                        "in which row and column, instead of --rows/--columns and capacitor order")
     p.add_argument("--patterns", default="default", metavar="all|optimised|default|N",
                    help="every pattern ('all'), the optimised set of 2 x unknowns ('optimised'), "
                         "all patterns up to 10 leads and the optimised set beyond ('default'), or an "
@@ -46,7 +49,8 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from mscap.outputs import output_directory
-    from mscap.readout.array import check_switches, grid_array
+    from mscap.errors import ReadoutError
+    from mscap.readout.array import check_switches, grid_array, read_wiring
     from mscap.readout.report import choose_patterns, readout_report, text_report, write_outputs
     from mscap.scene.calibration import NoiseModel
     from mscap.scene import load_scene
@@ -54,13 +58,16 @@ def run(args) -> int:
 
     # Every argument before any work: a bad one costs nothing.
     check_switches(args.c_on, args.c_off)
+    if args.wiring and (args.rows or args.columns):
+        raise ReadoutError("--wiring gives the array; leave out --rows and --columns")
     noise = NoiseModel(args.noise_relative, args.noise_additive_pF, args.runs, args.seed)
     if args.output:
         output_directory(args.output, "readout -o")
     path = split_design_spec(args.design)[0]
     scene = load_scene(args.scene)
     design = load_design(scene, args.design, args.which)
-    array = grid_array(design.capacitance_pF.shape[1], args.rows, args.columns)
+    k = design.capacitance_pF.shape[1]
+    array = read_wiring(args.wiring, k) if args.wiring else grid_array(k, args.rows, args.columns)
     patterns, description, start = choose_patterns(array, args.patterns, args.seed)
     report = readout_report(design, array, patterns, description, noise, args.c_on, args.c_off, start)
     report["scene"] = scene.name

@@ -29,7 +29,7 @@ from mscap.errors import ReadoutError
 from mscap.scene.calibration import NoiseModel
 
 __all__ = ["ReadoutError", "C_ON_PF", "C_OFF_PF", "MAX_ALL_LEADS", "MAX_DEFAULT_ALL_LEADS",
-           "MAX_ENUMERATED_CANDIDATE_LEADS", "MAX_RANDOM_CANDIDATES", "CapacitorArray", "grid_array",
+           "MAX_ENUMERATED_CANDIDATE_LEADS", "MAX_RANDOM_CANDIDATES", "CapacitorArray", "grid_array", "read_wiring",
            "all_patterns", "random_patterns", "MeasurementMatrix", "measurement_matrix", "check_rank", "Recovered",
            "ideal_readings", "recover", "noise_gain", "error_bound", "ReadoutErrors",
            "simulate_readout", "check_switches"]
@@ -39,6 +39,10 @@ log = logging.getLogger(__name__)
 #: Parasitic capacitance of one SPDT switch (ADG333A) ON and OFF, paper appendix C (pF).
 C_ON_PF = 35.0
 C_OFF_PF = 12.0
+#: A fabrication.json is some kB; ``read_wiring`` reads at most this much of one.
+MAX_WIRING_BYTES = 64 * 2**20
+#: Rows or columns of a wiring file: no design has more capacitors (the scene's bound).
+MAX_WIRING_LEADS = 100
 #: ``all_patterns`` refuses arrays with more leads (2**20 patterns).
 MAX_ALL_LEADS = 20
 #: The default pattern set is every pattern up to this many leads (2**10 readings).
@@ -135,6 +139,41 @@ def grid_array(k: int, rows: int | None = None, columns: int | None = None) -> C
     if rows * columns < k:
         raise ReadoutError(f"array: {k} capacitors do not fit a {rows} x {columns} array (rows x columns < k)")
     return CapacitorArray(rows, columns, tuple((i // columns, i % columns) for i in range(k)))
+
+
+def read_wiring(path, k: int) -> CapacitorArray:
+    """The array of a routed design: ``array`` of ``mscap fabricate``'s
+    ``fabrication.json`` (``rows``, ``columns``, ``slots``: each ``capacitor`` with its
+    ``row`` and ``column``), for a design of ``k`` capacitors.
+
+    Raises
+    ------
+    ReadoutError
+        Unreadable, not such a file, or not a wiring of these k capacitors (named).
+    """
+    import json
+
+    try:
+        with open(path, "rb") as f:
+            text = f.read(MAX_WIRING_BYTES + 1)
+    except OSError as exc:
+        raise ReadoutError(f"--wiring {path}: cannot read it ({exc.strerror})") from None
+    if len(text) > MAX_WIRING_BYTES:
+        raise ReadoutError(f"--wiring {path}: larger than {MAX_WIRING_BYTES // 2**20} MiB, not a fabrication.json")
+    try:
+        array = json.loads(text)["array"]
+        rows, columns = array["rows"], array["columns"]
+        slots = {int(s["capacitor"]): (s["row"], s["column"]) for s in array["slots"]}
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ReadoutError(f"--wiring {path}: not an `mscap fabricate` fabrication.json (array.rows, "
+                           f"array.columns, array.slots: {type(exc).__name__} {exc})") from None
+    values = [rows, columns] + [v for slot in slots.values() for v in slot]
+    if not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_WIRING_LEADS for v in values):
+        raise ReadoutError(f"--wiring {path}: array.rows, array.columns and every slot's row and column must be "
+                           f"whole numbers in 0..{MAX_WIRING_LEADS}")
+    if sorted(slots) != list(range(k)):
+        raise ReadoutError(f"--wiring {path}: wires capacitors {sorted(slots)}, the design has {k} (0..{k - 1})")
+    return CapacitorArray(rows, columns, tuple(slots[c] for c in range(k)))
 
 
 # ---------------------------------------------------------------- patterns

@@ -57,6 +57,15 @@ def test_fabricate_a_run_of_a_results_file_with_the_stored_or_another_scene(room
         write_run(store, record)
     assert main(["fabricate", str(tmp_path / "r.h5"), "--run", record.id, "-o", str(tmp_path / "a")]) == 0
     assert f"{record.id}: 2 x 1 array" in capsys.readouterr().out
+    # The read-out of the array as routed: the slots the router chose, not capacitor order
+    wiring = tmp_path / "a" / "fabrication.json"
+    slots = {s["capacitor"]: (s["row"], s["column"]) for s in json.loads(wiring.read_text())["array"]["slots"]}
+    assert main(["readout", str(scene.path), "--design", f"{tmp_path / 'r.h5'}:{record.id}", "--wiring", str(wiring),
+                 "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["array"]["slots"] == [list(slots[c]) for c in range(2)]
+    one_line_error(capsys, ["readout", str(scene.path), "--design", str(tmp_path / "r.h5"), "--wiring", str(wiring),
+                            "--rows", "2"], "--wiring gives the array; leave out --rows and --columns")
     # Rules given later: the same scene with a [fabrication] table, named by --scene
     roomy["fabrication"] = {"trace_width_mm": 0.8, "connector_edge": "top", "rows": 1, "columns": 2}
     other = write_scene(roomy, "with_rules.toml")

@@ -51,3 +51,30 @@ def test_rows_beyond_k_are_refused():
     # 10**9 rows of 4 capacitors: a billion empty leads the pattern search would draw.
     with pytest.raises(ReadoutError, match=r"rows and columns must be <= k = 4"):
         grid_array(4, rows=10**9)
+
+
+def test_a_routed_wiring_is_read_and_a_bad_one_is_one_line(tmp_path):
+    import json
+
+    from mscap.readout.array import read_wiring
+
+    wiring = {"array": {"rows": 2, "columns": 2, "slots": [{"capacitor": 0, "row": 1, "column": 0},
+                                                           {"capacitor": 1, "row": 0, "column": 0},
+                                                           {"capacitor": 2, "row": 0, "column": 1}]}}
+    path = tmp_path / "fabrication.json"
+    path.write_text(json.dumps(wiring))
+    array = read_wiring(path, 3)
+    assert (array.rows, array.columns, array.slots) == (2, 2, ((1, 0), (0, 0), (0, 1)))
+    with pytest.raises(ReadoutError, match=r"wires capacitors \[0, 1, 2\], the design has 2"):
+        read_wiring(path, 2)
+    wiring["array"]["rows"] = 10**12
+    path.write_text(json.dumps(wiring))
+    with pytest.raises(ReadoutError, match="whole numbers in 0..100"):
+        read_wiring(path, 3)
+    path.write_text("{not json")
+    with pytest.raises(ReadoutError, match="not an `mscap fabricate` fabrication.json"):
+        read_wiring(path, 3)
+    wiring["array"]["rows"] = 1  # slot row 1 of a 1-row array
+    path.write_text(json.dumps(wiring))
+    with pytest.raises(ReadoutError, match=r"capacitor 0 in slot \[1,0\] outside the 1 x 2 array"):
+        read_wiring(path, 3)
