@@ -4,6 +4,7 @@ multiplexed array and write its stencils (docs/fabrication.md)."""
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 
 __all__ = ["add_parser", "run"]
@@ -27,6 +28,7 @@ def add_parser(sub) -> None:
                    help="take the [fabrication] rules (and sheet) from this scene file instead of the scene "
                         "the design was made for (its name must match)")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="the directory to create")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress line per slot assignment on stderr")
     p.set_defaults(run=run)
 
 
@@ -57,7 +59,8 @@ def run(args) -> int:
                                    source=str(store.attrs["scene_toml"]))
             design = read_design(store, args.run_id, args.which)
         outlines, label = design.outlines, design.label
-    routing = route(outlines, scene.sheet_outline_mm, scene.fabrication, progress=log.info)
+    routing = route(outlines, scene.sheet_outline_mm, scene.fabrication,
+                    progress=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True))
     document = write_fabrication(routing, args.output, scene, label)
     check = document["design_rule_check"]["layers"]
     print(f"{label}: {routing.array.rows} x {routing.array.columns} array, connector on the {routing.edge} edge, "

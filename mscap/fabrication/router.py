@@ -174,6 +174,8 @@ def route(outlines, sheet_outline: np.ndarray, rules: FabricationSettings, progr
                             for p in plates])
         queues[edge] = ((pads, masks, ends), slot_assignments(centres, array.rows, array.columns, rules.assignments))
 
+    budget = min(rules.assignments, sum(len(c) for _, c in queues.values()))
+
     def attempt(edge, slots):
         nonlocal best, tried
         tried += 1
@@ -183,11 +185,13 @@ def route(outlines, sheet_outline: np.ndarray, rules: FabricationSettings, progr
                                         pads, masks, ends, rules)
         except FabricationError as exc:
             failures.append(f"{edge} edge, slots {list(slots)}: {exc}")
+            say(f"route {tried}/{budget}: {edge} edge: no route ({time.perf_counter() - started:.1f} s)")
             return
-        if best is None or routing.cost < best.cost - 1e-9:
-            best = routing
-            say(f"route: {edge} edge, slots {list(slots)}: {routing.length_mm:.1f} mm of leads, "
-                f"{routing.overlap_mm2:.2f} mm2 of overlap")
+        better = best is None or routing.cost < best.cost - 1e-9
+        best = routing if better else best
+        say(f"route {tried}/{budget}: {edge} edge: {routing.length_mm:.1f} mm of leads, "
+            f"{routing.overlap_mm2:.2f} mm2 of overlap{' (best so far)' if better else ''} "
+            f"({time.perf_counter() - started:.1f} s)")
 
     # Each edge with the read-out's default and four banded assignments, then the rest
     # of the budget on the best edge so far (on the other edges after it, while none routes).
