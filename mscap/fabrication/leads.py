@@ -32,24 +32,33 @@ def trim_path(points: np.ndarray, start, end) -> np.ndarray:
     return points[first:last + 1]
 
 
-def pull_straight(points: np.ndarray, forbidden, allowed, other, f: FabricationSettings) -> np.ndarray:
+def pull_straight(points: np.ndarray, forbidden, allowed, other, f: FabricationSettings,
+                  costly=None) -> np.ndarray:
     """The path with every run of points replaced by a straight lead where that lead
     keeps ``clearance_mm`` from ``forbidden``, stays in ``allowed`` and lies over no more
-    of ``other`` (the other layer) than the run it replaces."""
+    of ``other`` (the other layer) nor of ``costly`` (what the grid search paid extra for:
+    a straight lead across it would undo the search's detour) than the run it replaces."""
     half = 0.5 * f.trace_width_mm + 1e-3
     keep_out = forbidden.buffer(f.clearance_mm, quad_segs=8) if not forbidden.is_empty else None
     if keep_out is not None:
         shapely.prepare(keep_out)
     shapely.prepare(allowed)
+    weighed = [g for g in (other, costly) if g is not None and not g.is_empty]
+    for g in weighed:
+        shapely.prepare(g)
 
     def clear(a, b):
         lead = LineString(points[[a, b]]).buffer(half, quad_segs=4)
         if not allowed.contains(lead) or (keep_out is not None and keep_out.intersects(lead)):
             return False
-        if other is None:
-            return True
-        before = LineString(points[a:b + 1]).buffer(half, quad_segs=4).intersection(other).area
-        return lead.intersection(other).area <= before + 1e-6
+        run = None
+        for g in weighed:
+            if not g.intersects(lead):
+                continue
+            run = run if run is not None else LineString(points[a:b + 1]).buffer(half, quad_segs=4)
+            if lead.intersection(g).area > run.intersection(g).area + 1e-6:
+                return False
+        return True
 
     out = [0]
     a = 0

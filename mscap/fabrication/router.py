@@ -253,8 +253,8 @@ def _route_assignment(array: CapacitorArray, edge: str, sheet: Polygon, plates: 
         inward = np.asarray(end) - np.asarray(pad.centroid.coords[0])
         inward /= np.linalg.norm(inward)
         side = 0.5 * f.pad_pitch_mm * np.array([-inward[1], inward[0]])
-        rays.append(grid.mask(Polygon([end - side, end + side, end + side + reach * inward,
-                                       end - side + reach * inward])))
+        ray = Polygon([end - side, end + side, end + side + reach * inward, end - side + reach * inward])
+        rays.append((ray, grid.mask(ray)))
         # While its net waits, a pad keeps the first STUB_PITCHES pitches straight inward
         # for its own lead: a neighbour turning off across it would wall it in.
         # It stops short of the plates by a lane, so that leads can still pass in front of it.
@@ -364,13 +364,18 @@ def _route_net(ctx: _Context, name: str, layer: str, lead: int, nets: dict, mask
         cost += OVERLAP_WEIGHT_MM * f.trace_width_mm * grid.mask(other_geometry, half)
     pending = [other for other, net in nets.items() if other != name and (other[0] == "R") == (layer == "bottom")
                and (net is None or not net.pad_joined)]
+    costly = []  # what the grid costs, as geometry: straightening a path may not add to it
     for other in pending:  # crossing in front of a pad still to be routed can wall it in
-        cost += RAY_WEIGHT * ctx.rays[_lead_index(other, nets)]
+        ray, ray_cells = ctx.rays[_lead_index(other, nets)]
+        cost += RAY_WEIGHT * ray_cells
+        costly.append(ray)
     if pending:  # leave room beside the other nets' plates for the leads still to come
         others = unary_union([ctx.plates[c] for o in ctx.members if o != name
                               and (o[0] == "R") == (layer == "bottom") for c in ctx.members[o]])
         room = f.clearance_mm + half + margin + len(pending) * (f.trace_width_mm + f.clearance_mm)
         cost += NEAR_WEIGHT * grid.mask(others, room)
+        costly.append(others.buffer(room, quad_segs=4))
+    costly = unary_union(costly) if costly else None
     forbidden = unary_union(same_layer + [ctx.plates[c] for o in ctx.members if o != name and
                                           (o[0] == "R") == (layer == "bottom") for c in ctx.members[o]]
                             + [ctx.pads[_lead_index(o, nets)] for o in nets if o != name
@@ -403,7 +408,7 @@ def _route_net(ctx: _Context, name: str, layer: str, lead: int, nets: dict, mask
         cells = Grid.path(pred, end)
         goal = unary_union([ctx.plates[c] for c in own]) if t == "plates" else ctx.plates[t]
         points = trim_path(grid.points(cells), unary_union(joined), goal)
-        paths.append(pull_straight(points, forbidden, allowed, other_geometry, f))
+        paths.append(pull_straight(points, forbidden, allowed, other_geometry, f, costly))
         joined.append(goal)
         tree = np.union1d(np.union1d(tree, cells), targets[t])
         waiting.pop(i)
