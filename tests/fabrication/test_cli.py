@@ -26,6 +26,15 @@ def roomy(small_scene_dict):
     return small_scene_dict
 
 
+def optimize_dir(tmp_path, scene, outlines):
+    """An `mscap optimize` output directory holding ``outlines`` of ``scene``."""
+    run = tmp_path / "opt"
+    run.mkdir()
+    (run / "outlines.json").write_text(json.dumps({"scene": str(scene), "outlines_mm": outlines}))
+    (run / "summary.json").write_text(json.dumps({"scene": str(scene), "k": len(outlines)}))
+    return run
+
+
 def one_line_error(capsys, args, *needles):
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
@@ -36,11 +45,7 @@ def one_line_error(capsys, args, *needles):
 
 
 def test_fabricate_an_optimize_directory(roomy, write_scene, tmp_path, capsys):
-    scene = write_scene(roomy)
-    run = tmp_path / "opt"
-    run.mkdir()
-    (run / "outlines.json").write_text(json.dumps({"scene": str(scene), "outlines_mm": roomy["capacitors"]["outlines_mm"]}))
-    (run / "summary.json").write_text(json.dumps({"scene": str(scene), "k": 2}))
+    run = optimize_dir(tmp_path, write_scene(roomy), roomy["capacitors"]["outlines_mm"])
     assert main(["fabricate", str(run), "-o", str(tmp_path / "fab")]) == 0
     out = capsys.readouterr().out
     assert "opt (optimised): 2 x 1 array" in out and "rules met" in out
@@ -87,11 +92,7 @@ def test_fabricate_a_run_of_a_results_file_with_the_stored_or_another_scene(room
 ])
 def test_bad_rules_are_one_line_naming_the_key(roomy, write_scene, tmp_path, capsys, key, value, needle):
     roomy["fabrication"] = {key: value}
-    scene = write_scene(roomy)
-    run = tmp_path / "opt"
-    run.mkdir()
-    (run / "outlines.json").write_text(json.dumps({"outlines_mm": roomy["capacitors"]["outlines_mm"]}))
-    (run / "summary.json").write_text(json.dumps({"scene": str(scene)}))
+    run = optimize_dir(tmp_path, write_scene(roomy), roomy["capacitors"]["outlines_mm"])
     before = sorted(p.name for p in tmp_path.iterdir())
     one_line_error(capsys, ["fabricate", str(run), "-o", str(tmp_path / "fab")], needle)
     assert sorted(p.name for p in tmp_path.iterdir()) == before
@@ -100,11 +101,7 @@ def test_bad_rules_are_one_line_naming_the_key(roomy, write_scene, tmp_path, cap
 def test_unroutable_designs_and_taken_outputs_are_one_line_and_write_nothing(small_scene_dict, write_scene,
                                                                                tmp_path, capsys):
     # The small scene's plates come within 4 mm of every edge: 3 pads 3 mm long fit nowhere.
-    scene = write_scene(small_scene_dict)
-    run = tmp_path / "opt"
-    run.mkdir()
-    (run / "outlines.json").write_text(json.dumps({"outlines_mm": small_scene_dict["capacitors"]["outlines_mm"]}))
-    (run / "summary.json").write_text(json.dumps({"scene": str(scene)}))
+    run = optimize_dir(tmp_path, write_scene(small_scene_dict), small_scene_dict["capacitors"]["outlines_mm"])
     before = sorted(p.name for p in tmp_path.iterdir())
     one_line_error(capsys, ["fabricate", str(run), "-o", str(tmp_path / "fab")],
                    "fabrication.connector_edge: 3 pads", "fit nowhere along the bottom edge")
