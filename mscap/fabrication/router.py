@@ -206,7 +206,12 @@ def route(outlines, sheet_outline: np.ndarray, rules: FabricationSettings, progr
             break
         attempt(edge, slots)
     if best is None:
-        raise FabricationError(failures[0] if failures else "no connector edge holds the pads")
+        routed = [m for m in failures if " slots " in m]  # assignments that had pads and did not route
+        if not routed:
+            raise FabricationError(failures[0] if failures else "no connector edge holds the pads")
+        raise FabricationError(f"none of the {tried} slot assignments tried routes"
+                               f"{'' if len(queues) == len(edges) else ' (pads fit only on the ' + ', '.join(queues) + ' edge)'}"
+                               f"; the first: {routed[0]}")
     return Routing(best.array, best.edge, best.nets, sheet, tuple(plates), rules, tried,
                    time.perf_counter() - started, tuple(failures))
 
