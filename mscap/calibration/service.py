@@ -64,6 +64,9 @@ class Candidate:
 
     label: str
     outlines: tuple[np.ndarray, ...]
+    #: A :class:`mscap.fabrication.wired.Wiring`: read the sensor as wired (its nets'
+    #: mutual capacitances), not its plates.
+    wiring: object = None
 
     @property
     def k(self) -> int:
@@ -77,6 +80,8 @@ class Candidate:
         h = hashlib.sha256()
         for outline in self.outlines:
             h.update(np.ascontiguousarray(outline, dtype=float).tobytes())
+        if self.wiring is not None:
+            return f"wiring_{self.wiring.key}_{h.hexdigest()[:16]}"
         return f"layout_{h.hexdigest()[:16]}"
 
 
@@ -143,8 +148,14 @@ def _simulate_chunk(scene: Scene, design: Candidate, poses: tuple, mesh=None) ->
     from mscap.scene.sizing import with_layout
 
     s = replace(with_layout(scene, Layout(design.outlines)), poses=poses)  # sized for its plates
-    mesh = mesh or mesh_scene(s)
+    if design.wiring is not None:
+        from mscap.fabrication.wired import readings, wired_mesh
+        mesh = mesh or wired_mesh(s, design.wiring)
+    else:
+        mesh = mesh or mesh_scene(s)
     try:
+        if design.wiring is not None:
+            return readings(s, design.wiring, mesh)
         sim = simulate(s, mesh=mesh)
         return sim.capacitance_pF, np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])
     except MscapError as exc:

@@ -27,6 +27,9 @@ def add_parser(sub) -> None:
     p.add_argument("--baseline", nargs="*", default=None, metavar="B",
                    help="baselines: 'initial' (the design's initial layout), 'scene' (the scene's "
                         "own layout), a run id of the results file, or RUN:initial (default: initial)")
+    p.add_argument("--wiring", metavar="FABRICATE_DIR",
+                   help="also calibrate the design as wired: the nets of an `mscap fabricate` output directory "
+                        "(read from its stencils) and, for comparison, its plates alone on the same mesher")
     p.add_argument("-o", "--output", help="output directory (default: <results>_calibration/, or "
                                           "DIR/calibration/ for an optimize directory)")
     p.add_argument("--cache", help="simulation cache (default: <results>_calibration.h5, or "
@@ -84,6 +87,14 @@ def run(args) -> int:
     if rank == 0:
         output_directory(outdir, "calibrate -o")
     designs = [Candidate(label, outlines) for label, outlines in design_layouts(scene, args.design, args.baseline)]
+    if args.wiring:  # the design as wired, and its plates on the same mesher, before the baselines
+        from mscap.fabrication.wired import plates_only, read_wiring_dir
+
+        main = designs[0]
+        designs[1:1] = [Candidate(f"{main.label.split(' (')[0]} (as wired)", main.outlines,
+                                  read_wiring_dir(args.wiring, main.outlines)),
+                        Candidate(f"{main.label.split(' (')[0]} (plates, wired mesher)", main.outlines,
+                                  plates_only(main.outlines))]
     simulate_family(scene, designs, cache, comm, progress=progress_printer(args.quiet or rank > 0))
     if rank != 0:
         return 0

@@ -173,8 +173,11 @@ def permittivity_of_tets(mesh: LayeredMesh, layers: Sequence) -> np.ndarray:
     return tet_values(mesh, layers, lambda material: material.permittivity_pF_per_mm)
 
 
-def _plates(mesh: LayeredMesh) -> np.ndarray:
-    """Plate of each tet (bottoms first), -1 for dielectric; checks every plate exists."""
+def _plates(mesh: LayeredMesh, every_plate: bool = True) -> np.ndarray:
+    """Plate of each tet (bottoms first), -1 for dielectric; checks every plate exists
+    (unless not ``every_plate``: a wired sensor's m row and n column nets are the bottom
+    and top plates 0..max(m, n) - 1, some of which need not exist,
+    :mod:`mscap.fabrication.wired`)."""
     k, cap, layer = mesh.n_capacitors, mesh.capacitor_of_tet, mesh.layer_of_tet
     if k < 1:
         raise ElectrostaticError("the mesh has no capacitors (no triangle is tagged with one)")
@@ -185,14 +188,15 @@ def _plates(mesh: LayeredMesh) -> np.ndarray:
                                  f"not a conductive layer {CONDUCTIVE_LAYERS}")
     plate = np.where(cap >= 0, cap + k * (layer == TOP_PLATE_LAYER), -1)
     count = np.bincount(plate[plate >= 0], minlength=2 * k)
-    for p in np.flatnonzero(count == 0):
+    for p in np.flatnonzero(count == 0) if every_plate else ():
         where = "bottom plate layer" if p < k else "top plate layer"
         lay = BOTTOM_PLATE_LAYER if p < k else TOP_PLATE_LAYER
         raise ElectrostaticError(f"capacitor {p % k} has no conductor tets in the {where} (layer {lay})")
     return plate
 
 
-def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1, shape: str = "tet") -> ElectrostaticProblem:
+def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1, shape: str = "tet",
+                  every_plate: bool = True) -> ElectrostaticProblem:
     """Dofs, Dirichlet split and sparsity pattern of ``mesh`` (once per mesh), on its tets
     or (``shape="prism"``, P1) on the prisms they were cut from.
 
@@ -209,7 +213,7 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1, shape: st
         raise ElectrostaticError(f"prisms are P1 only; got order {order}")
     start = time.perf_counter()
     k = mesh.n_capacitors
-    plate_of_tet = _plates(mesh)
+    plate_of_tet = _plates(mesh, every_plate)
     all_dofs, n_dofs = fem.dof_table(mesh.tets, len(mesh.points), order)
     conductor = plate_of_tet >= 0
     plate_of_dof = _plate_of_dof(all_dofs[conductor], plate_of_tet[conductor], n_dofs, k)
@@ -249,10 +253,10 @@ def build_problem(mesh: LayeredMesh, layers: Sequence, order: int = 1, shape: st
     return problem
 
 
-def check_plates(mesh: LayeredMesh) -> None:
+def check_plates(mesh: LayeredMesh, every_plate: bool = True) -> None:
     """Raise what :func:`build_problem` would for ``mesh``'s plates (a missing plate, two
     plates touching), at a fraction of its cost: before a simulation's elastic solves."""
-    plate_of_tet = _plates(mesh)
+    plate_of_tet = _plates(mesh, every_plate)
     conductor = plate_of_tet >= 0
     _plate_of_dof(mesh.tets[conductor], plate_of_tet[conductor], len(mesh.points), mesh.n_capacitors)
 

@@ -88,7 +88,8 @@ def electro_vertices(mesh: LayeredMesh, problem: ElasticProblem, transfer, nodes
 def simulate(scene: Scene, order: int | None = None, elastic_order: int | None = None,
              mesh: LayeredMesh | None = None, keep_factorisation: bool = False, keep_fields: bool = True,
              out_of_core: bool = False, progress: Callable[[str], None] | None = None,
-             starts: Callable[[ElasticProblem], Sequence[np.ndarray | None]] | None = None) -> Simulation:
+             starts: Callable[[ElasticProblem], Sequence[np.ndarray | None]] | None = None,
+             every_plate: bool = True) -> Simulation:
     """Simulate every pose of ``scene``.
 
     Parameters
@@ -115,12 +116,15 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
         ``None``): e.g. a coarser mesh's equilibria interpolated (the finer-mesh check,
         :func:`mscap.service.accuracy.estimate_error`); a start that fails falls back to the
         pose's load path (:func:`equilibrium`).
+    every_plate
+        Require both plates of every capacitor (``False``: a wired sensor's mesh, whose
+        nets are the plates, :mod:`mscap.fabrication.wired`).
     """
     start = time.perf_counter()
     meshed_here = mesh is None
     mesh = mesh or mesh_scene(scene)
     meshed = time.perf_counter()
-    electrostatic.check_plates(mesh)  # a bad layout fails now, not after the elastic solves
+    electrostatic.check_plates(mesh, every_plate)  # a bad layout fails now, not after the elastic solves
     # The transfer to the electrostatic vertices is built after the elastic phase (35 MB on
     # biaxial's finer-mesh check); the elastic solves do not need it.
     problem, _ = elastic_setup(scene, mesh, elastic_order, transfer=False)
@@ -147,7 +151,8 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     try:
         mesh = mesh if mesh2d is None else extrude_scene(scene, mesh2d)
         sim = replace(sim, mesh=mesh, transfer=elastic_transfer(problem, mesh),
-                      electro=electrostatic.build_problem(mesh, scene.layers, *element_of(scene, order)))
+                      electro=electrostatic.build_problem(mesh, scene.layers, *element_of(scene, order),
+                                                          every_plate=every_plate))
     except BaseException:
         _free(states)
         raise

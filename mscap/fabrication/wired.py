@@ -1,0 +1,293 @@
+"""The sensor as it is wired: its routed nets, not its plates, through the same elastic
+and electrostatic simulation.
+
+In the multiplexed array a reading is the capacitance between row net i and column net
+j: plates, leads and pads together. The routed nets differ between the two conductive
+layers (rows below, columns above), so the sheet is triangulated conforming to both
+layers' outlines at once: gmsh's OpenCASCADE kernel fragments the sheet by every net
+region of either layer, and each triangle takes the net of each layer its centroid lies
+in. Extruded, a bottom-layer tet belongs to its row net and a top-layer tet to its column
+net; the Maxwell matrix over the nets (bottom plate i = row net i, top plate j = column
+net j) gives every reading at once, ``c_ij = −C(R_i, C_j)``.
+
+The plate-only design goes through the same mesher with its plates as the nets of both
+layers, so that the two differ by the wiring alone. The elastic problem is the scene's own
+(its elastic mesh, from the design's plates): the leads' stiffness is left out.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+import shapely
+import shapely.ops
+from scipy.spatial import cKDTree
+from shapely.geometry import Polygon
+
+from mscap.errors import FabricationError, MeshError
+from mscap.mesh.layered import BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER, LayeredMesh, extrude
+from mscap.mesh.triangulate import TriMesh, quality_grading_mm
+
+__all__ = ["Wiring", "wiring_of", "plates_only", "read_wiring_dir", "net_mesh", "wired_mesh", "readings"]
+
+log = logging.getLogger(__name__)
+
+#: Outline points closer than this to the one before are dropped before meshing.
+_MIN_EDGE_MM = 1e-5
+#: Net outline vertices this close to a plate's edge are moved onto it (mm).
+_SNAP_MM = 1e-3
+
+@dataclass(frozen=True, eq=False)
+class Wiring:
+    """How a design's plates become readings: ``bottom[i]`` and ``top[j]``, the conductor
+    regions of each conductive layer (shapely), and ``slots[c] = (i, j)``, the row and
+    column whose mutual capacitance is capacitor c's reading. The plate-only design
+    (:func:`plates_only`) has capacitor c's plate as conductor c of both layers."""
+
+    label: str
+    bottom: tuple
+    top: tuple
+    slots: tuple[tuple[int, int], ...]
+    plates: tuple
+
+    @property
+    def key(self) -> str:
+        """A hash of the conductors and slots: a different wiring is a different design."""
+        h = hashlib.sha256(self.label.encode())
+        for region in self.bottom + self.top:
+            h.update(shapely.to_wkb(region))
+        h.update(np.asarray(self.slots, dtype=np.int64).tobytes())
+        return h.hexdigest()[:16]
+
+
+def wiring_of(routing) -> Wiring:
+    """The wiring of a :class:`mscap.fabrication.router.Routing` (as routed)."""
+    return Wiring("wired", tuple(n.conductor for n in routing.layer("bottom")),
+                  tuple(n.conductor for n in routing.layer("top")), routing.array.slots, routing.plates)
+
+
+def plates_only(outlines) -> Wiring:
+    """The design without wiring, through the same mesher as a wired one."""
+    plates = tuple(Polygon(np.asarray(o, dtype=float)) for o in outlines)
+    return Wiring("plates", plates, plates, tuple((c, c) for c in range(len(plates))), plates)
+
+
+def read_wiring_dir(directory, outlines) -> Wiring:
+    """The wiring of an ``mscap fabricate`` output directory, as built: each net's region
+    read back from ``bottom.dxf`` and ``top.dxf``, the slots from ``fabrication.json``; the
+    design's plates ``outlines`` must each lie in one net of each layer.
+
+    Raises
+    ------
+    FabricationError
+        Not such a directory, or a wiring of another design.
+    """
+    import json
+    from pathlib import Path
+
+    from mscap.fabrication.stencil import read_stencil, regions
+
+    directory = Path(directory)
+    try:
+        document = json.loads((directory / "fabrication.json").read_text())
+        slots = {int(s["capacitor"]): (int(s["row"]), int(s["column"])) for s in document["array"]["slots"]}
+        rows, columns = int(document["array"]["rows"]), int(document["array"]["columns"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise FabricationError(f"{directory}: not an `mscap fabricate` output directory "
+                               f"(fabrication.json: {type(exc).__name__} {exc})") from None
+    plates = tuple(Polygon(np.asarray(o, dtype=float)) for o in outlines)
+    if sorted(slots) != list(range(len(plates))):
+        raise FabricationError(f"{directory}: wires capacitors {sorted(slots)}, the design has {len(plates)}")
+    layers = {}
+    for layer, prefix, count in (("bottom", "NET_R", rows), ("top", "NET_C", columns)):
+        groups = read_stencil(directory / f"{layer}.dxf")
+        layers[layer] = tuple(regions(groups.get(f"{prefix}{i}", [])) for i in range(count))
+    for c, (i, j) in enumerate(slots[c] for c in range(len(plates))):
+        for layer, n in (("bottom", i), ("top", j)):
+            if not layers[layer][n].buffer(1e-3).contains(plates[c]):
+                raise FabricationError(f"{directory}: capacitor {c}'s plate is not in net "
+                                       f"{'R' if layer == 'bottom' else 'C'}{n} of {layer}.dxf: "
+                                       f"the stencils are of another design")
+    return Wiring("wired", layers["bottom"], layers["top"], tuple(slots[c] for c in range(len(plates))), plates)
+
+
+def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thicknesses_mm,
+             elements_per_layer: int = 1, snap_to=None) -> LayeredMesh:
+    """The layered mesh whose bottom conductive layer holds the regions ``bottom`` (shapely
+    polygons, conductor i each) and whose top layer holds ``top``: triangulated conforming
+    to both, ``edge_length_outline_mm`` on every outline graded to ``edge_length_mm``;
+    the regions' vertices within 1e-3 mm of ``snap_to`` (the plates) moved onto it.
+
+    Raises
+    ------
+    MeshError
+        When gmsh fails, or a triangle lies in no region it was meant to.
+    """
+    import gmsh
+
+    sheet = Polygon(np.asarray(sheet_outline, dtype=float))
+    # Where the two layers' outlines run together (a plate's edge, in both) they must be
+    # one curve, not two 1e-5 apart with needles between them: a fillet's closing moves a
+    # plate's edge by that much next to a junction. Snapped onto the plates' edges.
+    if snap_to is not None:
+        bottom = [shapely.snap(net, snap_to, _SNAP_MM) for net in bottom]
+        top = [shapely.snap(net, snap_to, _SNAP_MM) for net in top]
+    plate_edges = snap_to.boundary if snap_to is not None else None
+    plate_vertices = shapely.get_coordinates(plate_edges) if snap_to is not None else None
+    regions = [(layer, i, part) for layer, nets in (("bottom", bottom), ("top", top))
+               for i, net in enumerate(nets) for part in getattr(net, "geoms", [net])]
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("General.NumThreads", 1)
+        gmsh.model.add("wired")
+        occ = gmsh.model.occ
+
+        def surface(polygon):
+            loops = []
+            for ring in [polygon.exterior] + list(polygon.interiors):
+                xy = _resampled(np.asarray(ring.coords)[:-1], plate_edges, plate_vertices,
+                                0.5 * settings.edge_length_outline_mm)
+                points = [occ.addPoint(float(x), float(y), 0.0) for x, y in xy]
+                lines = [occ.addLine(points[i], points[(i + 1) % len(points)]) for i in range(len(points))]
+                loops.append(occ.addCurveLoop(lines))
+            return occ.addPlaneSurface(loops)
+
+        sheet_tag = surface(sheet)
+        tags = [surface(part) for _, _, part in regions]
+        occ.fragment([(2, sheet_tag)], [(2, t) for t in tags])
+        occ.synchronize()
+        inner = []
+        for _, curve in gmsh.model.getEntities(1):  # every curve but the sheet's edge
+            x0, y0, _, x1, y1, _ = gmsh.model.getBoundingBox(1, curve)
+            middle = shapely.Point(0.5 * (x0 + x1), 0.5 * (y0 + y1))
+            if sheet.exterior.distance(middle) > 1e-6:
+                inner.append(curve)
+        field = gmsh.model.mesh.field
+        distance = field.add("Distance")
+        field.setNumbers(distance, "CurvesList", inner)
+        field.setNumber(distance, "Sampling", 200)
+        ramp = field.add("Threshold")
+        for key, value in dict(InField=distance, SizeMin=settings.edge_length_outline_mm,
+                               SizeMax=settings.edge_length_mm, DistMin=0.0,
+                               DistMax=quality_grading_mm(settings)).items():
+            field.setNumber(ramp, key, value)
+        field.setAsBackgroundMesh(ramp)
+        for option in ("MeshSizeExtendFromBoundary", "MeshSizeFromPoints", "MeshSizeFromCurvature"):
+            gmsh.option.setNumber(f"Mesh.{option}", 0)
+        gmsh.option.setNumber("Mesh.Algorithm", 6)
+        gmsh.model.mesh.generate(2)
+        node_tags, coords, _ = gmsh.model.mesh.getNodes()
+        index = np.full(int(node_tags.max()) + 1, -1, dtype=np.int64)
+        index[node_tags.astype(np.int64)] = np.arange(len(node_tags))
+        points = coords.reshape(-1, 3)[:, :2].copy()
+        types, _, element_nodes = gmsh.model.mesh.getElements(2)
+        triangles = np.concatenate([index[n.astype(np.int64)].reshape(-1, 3)
+                                    for t, n in zip(types, element_nodes) if t == 2])
+    except Exception as exc:
+        raise MeshError(f"gmsh failed to mesh the wired sheet: {exc}") from exc
+    finally:
+        gmsh.finalize()
+    used = np.zeros(len(points), dtype=bool)
+    used[triangles] = True
+    renumber = np.cumsum(used) - 1
+    points, triangles = points[used], renumber[triangles]
+    a, b, c = (points[triangles[:, i]] for i in range(3))
+    flipped = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
+    triangles[flipped] = triangles[flipped][:, [0, 2, 1]]
+    centroid = points[triangles].mean(axis=1)
+    label = {}
+    for layer, nets in (("bottom", bottom), ("top", top)):
+        label[layer] = np.full(len(triangles), -1, dtype=np.int64)
+        for i, net in enumerate(nets):
+            label[layer][shapely.contains_xy(net.buffer(1e-6), centroid[:, 0], centroid[:, 1])] = i
+    for layer, nets in (("bottom", bottom), ("top", top)):
+        area = np.bincount(label[layer][label[layer] >= 0], minlength=len(nets))
+        for i, net in enumerate(nets):
+            mesh_area = _areas(points, triangles[label[layer] == i]).sum()
+            if not abs(mesh_area - net.area) <= 1e-3 * net.area + 1e-3:
+                raise MeshError(f"the wired mesh covers {mesh_area:.6g} mm2 of {layer} conductor {i}, "
+                                f"whose outline holds {net.area:.6g} mm2 ({int(area[i])} triangles)")
+    mesh2d = TriMesh(points, triangles, np.where(label["bottom"] >= 0, label["bottom"], label["top"]))
+    mesh = extrude(mesh2d, thicknesses_mm, elements_per_layer)
+    layer = mesh.layer_of_tet
+    conductor = np.full(len(mesh.tets), -1, dtype=np.int32)
+    on_bottom, on_top = layer == BOTTOM_PLATE_LAYER, layer == TOP_PLATE_LAYER
+    conductor[on_bottom] = label["bottom"][mesh.triangle_of_tet[on_bottom]]
+    conductor[on_top] = label["top"][mesh.triangle_of_tet[on_top]]
+    log.info("wired mesh: %d triangles, %d tets", len(triangles), len(mesh.tets))
+    return replace(mesh, capacitor_of_tet=conductor)
+
+
+def _resampled(xy: np.ndarray, plate_edges, plate_vertices, spacing: float) -> np.ndarray:
+    """A ring's points without those closer than ``spacing`` to the last one kept, except
+    the points on a plate's edge (``plate_edges``), all of which stay: a lead's round ends
+    are 32-gons of 0.05–0.1 mm sides, below the mesh size, and gmsh cuts across such
+    corners with needle triangles that a pose turns inside out; a plate's edge is the same
+    polyline in both layers only if both keep every one of its points."""
+    xy = xy.copy()
+    if plate_edges is None:
+        on_plate = np.ones(len(xy), dtype=bool)
+    else:  # a point a hair off a plate's edge (the files' 1e-6 mm rounding) goes onto it
+        distance = shapely.distance(plate_edges, shapely.points(xy))
+        near = (distance > 0) & (distance < _SNAP_MM)
+        if near.any():
+            along = shapely.line_locate_point(plate_edges, shapely.points(xy[near]))
+            xy[near] = shapely.get_coordinates(shapely.line_interpolate_point(plate_edges, along))
+        on_plate = distance < _SNAP_MM
+        # and a point on an edge next to one of its vertices onto that vertex: two points
+        # 1e-4 mm apart are a needle's base
+        corner_distance, corner = cKDTree(plate_vertices).query(xy)
+        merge = on_plate & (corner_distance > 0) & (corner_distance < 0.1 * spacing)
+        xy[merge] = plate_vertices[corner[merge]]
+    keep = [0]
+    for p in range(1, len(xy)):
+        gap = np.linalg.norm(xy[p] - xy[keep[-1]])
+        if gap > _MIN_EDGE_MM and (on_plate[p] or gap >= spacing):
+            keep.append(p)
+    if len(keep) > 1 and np.linalg.norm(xy[keep[-1]] - xy[0]) <= _MIN_EDGE_MM:
+        keep.pop()
+    return xy[keep] if len(keep) >= 3 else xy
+
+
+def _areas(points, triangles):
+    a, b, c = (points[triangles[:, i]] for i in range(3))
+    return 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+
+
+def wired_mesh(scene, wiring: Wiring) -> LayeredMesh:
+    """``wiring``'s conductors meshed on ``scene``'s sheet, stack and mesh sizes: bottom
+    conductor i, top conductor j."""
+    return net_mesh(scene.sheet_outline_mm, list(wiring.bottom), list(wiring.top), scene.mesh,
+                    [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
+                    snap_to=shapely.ops.unary_union(wiring.plates))
+
+
+def readings(scene, wiring: Wiring, mesh: LayeredMesh | None = None, progress=None) -> tuple[np.ndarray, np.ndarray]:
+    """Every pose of ``scene`` (whose layout is the design's plates) simulated on the
+    wired mesh: ``(n_poses, k)`` readings, capacitor c's the mutual capacitance of its
+    row and column conductors, ``−C(bottom i, top j)`` of the Maxwell matrix (pF); and each
+    pose's wall time (s)."""
+    from mscap.fem import electrostatic
+    from mscap.fem.petsc import LinearSolver
+    from mscap.fem.simulate import simulate
+
+    mesh = mesh or wired_mesh(scene, wiring)
+    sim = simulate(scene, mesh=mesh, keep_fields=True, progress=progress, every_plate=False)
+    k = mesh.n_capacitors
+    out = np.full((len(sim.poses), len(wiring.slots)), np.nan)
+    wall = np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])
+    solver = LinearSolver("electro_")
+    try:
+        for p, pose in enumerate(sim.poses):
+            t = time.perf_counter()
+            maxwell = electrostatic.solve(sim.electro, pose.vertices, maxwell=True, solver=solver).maxwell_pF
+            out[p] = [-maxwell[i, k + j] for i, j in wiring.slots]
+            wall[p] += time.perf_counter() - t
+    finally:
+        solver.destroy()
+    return out, wall

@@ -1,0 +1,78 @@
+"""The sensor simulated as it is wired: the routed nets meshed conforming to both
+conductive layers, their Maxwell matrix read as c_ij, against the same design's plates on
+the same mesher. Pinned against the parallel-plate capacitance of the one lead crossing
+of pneumatic_quick's design routed to the top edge (tests/fabrication/data)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mscap.errors import FabricationError
+from mscap.fabrication.report import write_fabrication
+from mscap.fabrication.router import route
+from mscap.fabrication.wired import plates_only, read_wiring_dir, readings, wired_mesh, wiring_of
+from mscap.mesh.layered import BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER
+from mscap.scene import load_scene
+from mscap.scene.settings import EPSILON0_PF_PER_MM
+from tests.conftest import SMALL_SCENE, to_toml
+
+DATA = Path(__file__).parent / "data" / "pneumatic_quick_k3.json"
+
+
+@pytest.fixture(scope="module")
+def routed(tmp_path_factory):
+    design = json.loads(DATA.read_text())
+    tmp = tmp_path_factory.mktemp("wired")
+    scene_dict = dict(SMALL_SCENE, sheet={"outline_mm": design["sheet_mm"]})
+    scene_dict["capacitors"] = {"min_gap_mm": 2.0, "outlines_mm": design["outlines_mm"]}
+    scene_dict["fabrication"] = {"connector_edge": "top", "assignments": 1}
+    (tmp / "scene.toml").write_text(to_toml(scene_dict))
+    scene = load_scene(tmp / "scene.toml")  # one free pose, rest: electrostatics only
+    outlines = [np.array(o) for o in design["outlines_mm"]]
+    routing = route(outlines, scene.sheet_outline_mm, scene.fabrication)
+    write_fabrication(routing, tmp / "fab", scene, "pneumatic k3")
+    return scene, outlines, routing, tmp / "fab"
+
+
+def test_the_wired_mesh_holds_each_net_in_its_own_layer(routed):
+    scene, _, routing, _ = routed
+    mesh = wired_mesh(scene, wiring_of(routing))
+    areas = mesh.mesh2d.areas()[mesh.triangle_of_tet]
+    for layer, nets in ((BOTTOM_PLATE_LAYER, routing.layer("bottom")), (TOP_PLATE_LAYER, routing.layer("top"))):
+        for i, net in enumerate(nets):
+            in_net = (mesh.layer_of_tet == layer) & (mesh.capacitor_of_tet == i)
+            # three tets per prism, one slab per layer: a third of the triangles' area each
+            assert areas[in_net].sum() / 3 == pytest.approx(net.conductor.area, rel=1e-3)
+    assert (mesh.volumes() > 0).all()
+
+
+def test_a_lead_crossing_adds_its_capacitance_to_its_slot_alone(routed):
+    scene, outlines, routing, _ = routed
+    (crossing,) = [o for o in routing.overlaps() if o["area_mm2"] > 0.5]
+    slot = (crossing["row"], crossing["column"])
+    c = routing.array.slots.index(slot)
+    wired, _ = readings(scene, wiring_of(routing))
+    plates, _ = readings(scene, plates_only(outlines))
+    # εr 2.84 across the 0.14 mm middle layer; a 1 mm wide crossing fringes by as much again
+    parallel = crossing["area_mm2"] * 2.84 * EPSILON0_PF_PER_MM / 0.14
+    added = wired[0] - plates[0]
+    assert 1.0 * parallel < added[c] < 2.5 * parallel
+    others = np.delete(np.arange(len(outlines)), c)
+    assert np.all(np.abs(added[others]) < 2e-3 * plates[0, others])
+
+
+def test_the_wiring_read_back_from_the_stencils_is_the_routed_one(routed):
+    scene, outlines, routing, fab = routed
+    wiring = read_wiring_dir(fab, outlines)
+    assert wiring.slots == routing.array.slots
+    for read, routed_net in zip(wiring.bottom + wiring.top, routing.layer("bottom") + routing.layer("top")):
+        assert read.symmetric_difference(routed_net.conductor).area < 1e-4
+    moved = [o + np.array([0.0, 5.0]) for o in outlines]
+    with pytest.raises(FabricationError, match="capacitor 0's plate is not in net .* the stencils are of another"):
+        read_wiring_dir(fab, moved)
+    with pytest.raises(FabricationError, match="wires capacitors \\[0, 1, 2\\], the design has 2"):
+        read_wiring_dir(fab, outlines[:2])
