@@ -61,7 +61,8 @@ def fabrication_document(routing: Routing, check: dict, scene, design: str) -> d
         extra = sum(o["area_mm2"] for o in overlaps if (o["row"], o["column"]) == (i, j))
         plates.append({"capacitor": c, "row": i, "column": j, "plate_area_mm2": area,
                        "plate_capacitance_pF": area * per_mm2, "lead_overlap_mm2": extra,
-                       "lead_share": extra / area})
+                       "lead_share": extra / area,
+                       "outline_mm": np.asarray(routing.plates[c].exterior.coords)[:-1].tolist()})
     return {
         "scene": scene.path, "design": design, "connector_edge": routing.edge,
         "array": {"rows": array.rows, "columns": array.columns, "slots": plates},

@@ -76,10 +76,11 @@ def plates_only(outlines) -> Wiring:
     return Wiring("plates", plates, plates, tuple((c, c) for c in range(len(plates))), plates)
 
 
-def read_wiring_dir(directory, outlines) -> Wiring:
+def read_wiring_dir(directory, outlines=None) -> Wiring:
     """The wiring of an ``mscap fabricate`` output directory, as built: each net's region
-    read back from ``bottom.dxf`` and ``top.dxf``, the slots from ``fabrication.json``; the
-    design's plates ``outlines`` must each lie in one net of each layer.
+    read back from ``bottom.dxf`` and ``top.dxf``, the slots (and, without ``outlines``,
+    the plates) from ``fabrication.json``; the design's plates must each lie in their
+    net of each layer.
 
     Raises
     ------
@@ -96,6 +97,9 @@ def read_wiring_dir(directory, outlines) -> Wiring:
         document = json.loads((directory / "fabrication.json").read_text())
         slots = {int(s["capacitor"]): (int(s["row"]), int(s["column"])) for s in document["array"]["slots"]}
         rows, columns = int(document["array"]["rows"]), int(document["array"]["columns"])
+        if outlines is None:
+            outlines = [np.asarray(s["outline_mm"], dtype=float) for s in
+                        sorted(document["array"]["slots"], key=lambda s: int(s["capacitor"]))]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise FabricationError(f"{directory}: not an `mscap fabricate` output directory "
                                f"(fabrication.json: {type(exc).__name__} {exc})") from None
@@ -138,6 +142,16 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
         top = [shapely.snap(net, snap_to, _SNAP_MM) for net in top]
     plate_edges = snap_to.boundary if snap_to is not None else None
     plate_vertices = shapely.get_coordinates(plate_edges) if snap_to is not None else None
+    spacing = 0.5 * settings.edge_length_outline_mm
+
+    def resampled(polygon):
+        rings = [_resampled(np.asarray(r.coords)[:-1], plate_edges, plate_vertices, spacing)
+                 for r in [polygon.exterior] + list(polygon.interiors)]
+        thinned = Polygon(rings[0], rings[1:])
+        return thinned if thinned.is_valid else polygon  # a narrow place the thinning crossed: keep it all
+
+    bottom = [shapely.ops.unary_union([resampled(p) for p in getattr(n, "geoms", [n])]) for n in bottom]
+    top = [shapely.ops.unary_union([resampled(p) for p in getattr(n, "geoms", [n])]) for n in top]
     regions = [(layer, i, part) for layer, nets in (("bottom", bottom), ("top", top))
                for i, net in enumerate(nets) for part in getattr(net, "geoms", [net])]
     gmsh.initialize(readConfigFiles=False, interruptible=False)
@@ -150,8 +164,7 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
         def surface(polygon):
             loops = []
             for ring in [polygon.exterior] + list(polygon.interiors):
-                xy = _resampled(np.asarray(ring.coords)[:-1], plate_edges, plate_vertices,
-                                0.5 * settings.edge_length_outline_mm)
+                xy = np.asarray(ring.coords)[:-1]
                 points = [occ.addPoint(float(x), float(y), 0.0) for x, y in xy]
                 lines = [occ.addLine(points[i], points[(i + 1) % len(points)]) for i in range(len(points))]
                 loops.append(occ.addCurveLoop(lines))

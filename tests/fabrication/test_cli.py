@@ -53,6 +53,15 @@ def test_fabricate_an_optimize_directory(roomy, write_scene, tmp_path, capsys):
     assert document["design"] == "opt (optimised)" and document["design_rule_check"]["violations"] == []
     assert [s["capacitor"] for s in document["array"]["slots"]] == [0, 1]
     assert sorted(p["net"] for p in document["pads"]) == ["C0", "R0", "R1"]
+    # The design as wired, simulated: the plates come from fabrication.json, the nets from
+    # the stencils; one free pose, so the readings are the rest capacitances
+    assert main(["simulate", str(run / ".." / "scene.toml"), "--wiring", str(tmp_path / "fab"), "-q", "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    wired, plates = np.array(record["wired_pF"]), np.array(record["plates_pF"])
+    assert wired.shape == plates.shape == (1, 2)
+    assert np.all(np.abs(wired / plates - 1) < 0.02)  # two straight leads, no crossing: within 2 %
+    one_line_error(capsys, ["simulate", str(run / ".." / "scene.toml"), "--wiring", str(tmp_path / "fab"),
+                            "--export", str(tmp_path / "x")], "--wiring simulates with the scene's orders")
 
 
 def test_fabricate_a_run_of_a_results_file_with_the_stored_or_another_scene(roomy, write_scene, tmp_path, capsys):
