@@ -36,6 +36,8 @@ __all__ = ["Wiring", "wiring_of", "plates_only", "read_wiring_dir", "net_mesh", 
 
 log = logging.getLogger(__name__)
 
+#: A fabrication.json is some kB (the plates' outlines): at most this much of one is read.
+MAX_JSON_BYTES = 64 * 2**20
 #: Outline points closer than this to the one before are dropped before meshing.
 _MIN_EDGE_MM = 1e-5
 #: Net outline vertices this close to a plate's edge are moved onto it (mm).
@@ -94,7 +96,11 @@ def read_wiring_dir(directory, outlines=None) -> Wiring:
 
     directory = Path(directory)
     try:
-        document = json.loads((directory / "fabrication.json").read_text())
+        with open(directory / "fabrication.json", "rb") as f:
+            text = f.read(MAX_JSON_BYTES + 1)
+        if len(text) > MAX_JSON_BYTES:
+            raise ValueError(f"larger than {MAX_JSON_BYTES // 2**20} MiB")
+        document = json.loads(text)
         slots = {int(s["capacitor"]): (int(s["row"]), int(s["column"])) for s in document["array"]["slots"]}
         rows, columns = int(document["array"]["rows"]), int(document["array"]["columns"])
         if outlines is None:

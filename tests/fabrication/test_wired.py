@@ -76,3 +76,17 @@ def test_the_wiring_read_back_from_the_stencils_is_the_routed_one(routed):
         read_wiring_dir(fab, moved)
     with pytest.raises(FabricationError, match="wires capacitors \\[0, 1, 2\\], the design has 2"):
         read_wiring_dir(fab, outlines[:2])
+
+
+def test_a_directory_that_is_not_a_fabrication_is_one_line(tmp_path, capsys):
+    from mscap.cli import main
+
+    (tmp_path / "fab").mkdir()
+    (tmp_path / "fab" / "fabrication.json").write_text('{"array": {"rows": 1}}')
+    scene = tmp_path / "scene.toml"
+    scene.write_text(to_toml(SMALL_SCENE))
+    assert main(["simulate", str(scene), "--wiring", str(tmp_path / "fab"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not an `mscap fabricate` output directory" in err
+    assert main(["simulate", str(scene), "--wiring", str(tmp_path / "nowhere"), "-q"]) == 2
+    assert "No such file" in capsys.readouterr().err
