@@ -90,3 +90,26 @@ def test_a_directory_that_is_not_a_fabrication_is_one_line(tmp_path, capsys):
     assert err.count("\n") == 1 and "not an `mscap fabricate` output directory" in err
     assert main(["simulate", str(scene), "--wiring", str(tmp_path / "nowhere"), "-q"]) == 2
     assert "No such file" in capsys.readouterr().err
+
+
+def test_thinning_keeps_every_plate_point_and_moves_near_ones_onto_the_edge():
+    import shapely
+    from shapely.geometry import box
+
+    from mscap.fabrication.wired import _resampled
+
+    plate = box(0, 0, 10, 10)
+    edges = plate.boundary
+    corners = shapely.get_coordinates(edges)
+    # a ring along the plate's bottom edge with one point 5e-7 below it (the files' rounding),
+    # one 1e-4 beside the corner (10, 0), then a round end below it in 0.05 mm steps
+    arc = np.column_stack([5 + 0.5 * np.cos(np.linspace(np.pi, 2 * np.pi, 31)),
+                           -0.5 + 0.5 * np.sin(np.linspace(np.pi, 2 * np.pi, 31))])
+    ring = np.vstack([[0, 0], [3, -5e-7], [9.9999, 0], [10, 0], arc[::-1]])
+    thinned = _resampled(ring, edges, corners, spacing=0.25)
+    assert [0, 0] in thinned.tolist() and [10, 0] in thinned.tolist()
+    assert [3, 0] in thinned.tolist()  # moved onto the edge, exactly
+    assert (thinned[:, 0] == 9.9999).sum() == 0 and (thinned == [10, 0]).all(axis=1).sum() == 1  # merged
+    off = thinned[~np.isclose(thinned[:, 1], 0)]
+    steps = np.linalg.norm(np.diff(off, axis=0), axis=1)
+    assert len(off) < 31 and steps.min() >= 0.25 - 1e-12  # the arc thinned to the spacing
