@@ -7,7 +7,7 @@ grows with k (docs/fabrication.md).
 
 ``--design SCENE=RESULTS.h5`` routes the results file's chosen design under the scene's
 ``[fabrication]`` rules (``SCENE=layout``: the scene's own layout); one markdown row each:
-the array, the connector edge, lead length, row/column overlaps and their parallel-plate
+the array, the connector edge, lead length, row/column crossings, the overlap area and its parallel-plate
 rest capacitance against the plates', route and write times. ``--scaling N ...``: N × N
 grids of 12 mm plates at a 20 mm pitch, k = N², the same 24 slot assignments each.
 """
@@ -25,7 +25,7 @@ import numpy as np
 
 from mscap.errors import FabricationError
 from mscap.fabrication.report import write_fabrication
-from mscap.fabrication.router import route
+from mscap.fabrication.router import CROSSING_MM2, route
 from mscap.geometry.layout import grid_layout
 from mscap.scene import load_scene
 from mscap.scene.settings import FabricationSettings
@@ -60,7 +60,8 @@ def fabricate(spec: str, figures: Path | None) -> str:
     checks = document["design_rule_check"]["layers"]
     clearance = min(v["min_clearance_mm"] for v in checks.values() if v["min_clearance_mm"] is not None)
     return (f"| {scene.name} | {label} | {len(outlines)} | {routing.array.rows} x {routing.array.columns} | "
-            f"{routing.edge} | {routing.length_mm:.0f} | {len(document['overlaps'])} / "
+            f"{routing.edge} | {routing.length_mm:.0f} | "
+            f"{sum(o['area_mm2'] >= CROSSING_MM2 for o in document['overlaps'])} / "
             f"{document['overlap_mm2']:.2f} | {document['overlap_capacitance_pF']:.3f} | "
             f"{min(plates):.0f}-{max(plates):.0f} | {100 * share:.2f} % | {clearance:.2f} | "
             f"{routing.assignments_tried} | {routed:.1f} | {written:.1f} |")
@@ -95,7 +96,7 @@ def main(argv=None) -> int:
     parser.add_argument("--scaling", type=int, nargs="*", metavar="N")
     args = parser.parse_args(argv)
     if args.design:
-        print("| scene | design | k | array | connector | leads (mm) | overlaps / mm2 | overlap pF | plates pF "
+        print("| scene | design | k | array | connector | leads (mm) | crossings / overlap mm² | overlap pF | plates pF "
               "(parallel plate) | largest lead share | clearance (mm) | assignments | route (s) | write + check (s) |")
         print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for spec in args.design:

@@ -35,7 +35,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from mscap.errors import FabricationError
     from mscap.fabrication.report import check_target, write_fabrication
-    from mscap.fabrication.router import route
+    from mscap.fabrication.router import CROSSING_MM2, route
     from mscap.scene import load_scene
     from mscap.service.designs import check_scene, read_design, read_optimize_output
     from mscap.service.store import read_store
@@ -64,8 +64,9 @@ def run(args) -> int:
     document = write_fabrication(routing, args.output, scene, label)
     check = document["design_rule_check"]["layers"]
     print(f"{label}: {routing.array.rows} x {routing.array.columns} array, connector on the {routing.edge} edge, "
-          f"{routing.length_mm:.1f} mm of leads, {len(document['overlaps'])} row/column overlaps "
-          f"({document['overlap_mm2']:.3g} mm2, {document['overlap_capacitance_pF']:.3g} pF at rest); "
+          f"{routing.length_mm:.1f} mm of leads, "
+          f"{sum(o['area_mm2'] >= CROSSING_MM2 for o in document['overlaps'])} row/column crossings "
+          f"({document['overlap_mm2']:.3g} mm2 of overlap, {document['overlap_capacitance_pF']:.3g} pF at rest); "
           f"routed in {routing.time_s:.1f} s over {routing.assignments_tried} slot assignments")
     for layer, report in check.items():
         clearance = report["min_clearance_mm"]

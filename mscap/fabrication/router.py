@@ -46,7 +46,7 @@ from mscap.readout.array import CapacitorArray, grid_array
 from mscap.scene.loader import routing_grid_mm
 from mscap.scene.settings import FabricationSettings
 
-__all__ = ["OVERLAP_WEIGHT_MM", "RAY_WEIGHT", "NEAR_WEIGHT", "STUB_PITCHES", "LAYERS", "Net", "Routing", "route",
+__all__ = ["OVERLAP_WEIGHT_MM", "CROSSING_MM2", "RAY_WEIGHT", "NEAR_WEIGHT", "STUB_PITCHES", "LAYERS", "Net", "Routing", "route",
            "slot_assignments", "connector_pads"]
 
 log = logging.getLogger(__name__)
@@ -66,6 +66,9 @@ NEAR_WEIGHT = 1.0
 #: Pitches straight inward of a pad that no other lead of its layer may cross before the
 #: pad's own lead is routed (less where plates are nearer: a lane stays free before them).
 STUB_PITCHES = 2
+#: An overlap of at least this area (mm²) is a lead crossing; smaller ones are where two
+#: leads' fillets meet at a plate (1e-4 pF), listed but not counted as crossings.
+CROSSING_MM2 = 0.01
 #: The conductive layers, bottom first: rows in the bottom one, columns in the top one.
 LAYERS = ("bottom", "top")
 # Slot assignments tried on every edge before the budget goes to the best one.

@@ -4,11 +4,7 @@ column outside a plate circled."""
 
 from __future__ import annotations
 
-__all__ = ["plot_routing", "SHOWN_OVERLAP_MM2"]
-
-#: Overlaps below this are where two leads' fillets meet at a plate (1e-4 pF); they count
-#: in the title's total but are not circled.
-SHOWN_OVERLAP_MM2 = 0.01
+__all__ = ["plot_routing"]
 
 
 def plot_routing(routing, path, title: str = "") -> None:
@@ -18,6 +14,8 @@ def plot_routing(routing, path, title: str = "") -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
+
+    from mscap.fabrication.router import CROSSING_MM2
 
     colours = {"bottom": "tab:blue", "top": "tab:red"}
     minx, miny, maxx, maxy = routing.sheet.bounds
@@ -36,12 +34,13 @@ def plot_routing(routing, path, title: str = "") -> None:
         ax.text(plate.centroid.x, plate.centroid.y, f"{c}\nR{i} C{j}", ha="center", va="center", fontsize=7)
     overlaps = routing.overlaps()
     for o in overlaps:
-        if o["area_mm2"] < SHOWN_OVERLAP_MM2:
+        if o["area_mm2"] < CROSSING_MM2:
             continue
         ax.plot(*o["centroid_mm"], "o", mfc="none", mec="black", ms=9, mew=1.2)
     total = sum(o["area_mm2"] for o in overlaps)
     ax.set_title(f"{title}  {routing.array.rows} x {routing.array.columns} array, connector {routing.edge}, "
-                 f"leads {routing.length_mm:.0f} mm, {len(overlaps)} row/column overlaps ({total:.2f} mm²)",
+                 f"leads {routing.length_mm:.0f} mm, {sum(o['area_mm2'] >= CROSSING_MM2 for o in overlaps)} "
+                 f"row/column crossings ({total:.2f} mm² of overlap)",
                  fontsize=8)
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
