@@ -32,9 +32,10 @@ def edge_frame(geometry, edge: str):
 def slot_assignments(centres: np.ndarray, rows: int, columns: int, count: int, seed: int = 0) -> list[tuple]:
     """Up to ``count`` distinct slot assignments of capacitors at ``centres`` (k, 2; the
     edge frame, connector below): the read-out's default (capacitor order, row by row),
-    rows as bands along the connector (row 0 nearest, then farthest; columns left to right,
-    then right to left) and each one's transpose (columns as bands), then seeded random
-    ones."""
+    rows as bands nested from both ends of the pad row (farthest band to R0, the next to
+    the last row, ...), rows as bands along the connector (row 0 nearest, then farthest;
+    columns left to right, then right to left) and each one's transpose (columns as
+    bands), then seeded random ones."""
     k = len(centres)
     slots = [(i // columns, i % columns) for i in range(rows * columns)]
     out: list[tuple] = []
@@ -51,6 +52,23 @@ def slot_assignments(centres: np.ndarray, rows: int, columns: int, count: int, s
         return candidate
 
     add(slots[:k])
+    # Nested: rows as bands along the connector, the farthest band to the outermost row pad
+    # (R0 on the left, then R(m-1) on the right, then R1, ...), the nearest to the middle
+    # one: each row's lead then goes round the nearer bands outside the leads still to
+    # come. Columns left to right (or back, mirrored).
+    by_distance = np.argsort(-centres[:, 1], kind="stable")  # farthest first
+    bands = [by_distance[b:b + columns] for b in range(0, k, columns)]
+    left, right, row_of_band = 0, len(bands) - 1, []
+    for n in range(len(bands)):
+        row_of_band.append(left if n % 2 == 0 else right)
+        left, right = (left + 1, right) if n % 2 == 0 else (left, right - 1)
+    for mirrored in (False, True):
+        x = -centres[:, 0] if mirrored else centres[:, 0]
+        nested = [None] * k
+        for band, row in zip(bands, row_of_band):
+            for column, c in enumerate(sorted(band, key=lambda c: x[c])):
+                nested[c] = (row, column)
+        add(nested)
     # Banded: rows as bands along the connector (near to far, then far to near: the
     # outermost detour belongs to the leftmost pad), columns left to right or back; then
     # the transpose, columns as bands.

@@ -72,7 +72,7 @@ CROSSING_MM2 = 0.01
 #: The conductive layers, bottom first: rows in the bottom one, columns in the top one.
 LAYERS = ("bottom", "top")
 # Slot assignments tried on every edge before the budget goes to the best one.
-_FIRST_PER_EDGE = 5
+_FIRST_PER_EDGE = 7
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,7 +196,7 @@ def route(outlines, sheet_outline: np.ndarray, rules: FabricationSettings, progr
             f"{routing.overlap_mm2:.2f} mm2 of overlap{' (best so far)' if better else ''} "
             f"({time.perf_counter() - started:.1f} s)")
 
-    # Each edge with the read-out's default and four banded assignments, then the rest
+    # Each edge with the read-out's default, the two nested and four banded assignments, then the rest
     # of the budget on the best edge so far (on the other edges after it, while none routes).
     for edge, (_, candidates) in queues.items():
         for slots in candidates[:_FIRST_PER_EDGE]:

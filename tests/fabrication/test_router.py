@@ -82,9 +82,12 @@ def test_slot_assignments_are_distinct_complete_and_start_with_the_readouts_defa
     assert len(candidates) == 24  # 4! assignments of 4 capacitors to a 2 x 2 array, no more
     assert len(set(candidates)) == 24
     assert candidates[0] == ((0, 0), (0, 1), (1, 0), (1, 1))
-    # the second: rows as bands away from the connector, columns left to right
+    # the second: rows as bands nested from both ends of the pad row: the farthest band is
+    # R0 (leftmost pad), the nearest the last row; columns left to right
     by_y = np.argsort(centres[:, 1])
-    assert {candidates[1][c][0] for c in by_y[:2]} == {0} and {candidates[1][c][0] for c in by_y[2:]} == {1}
+    assert {candidates[1][c][0] for c in by_y[2:]} == {0} and {candidates[1][c][0] for c in by_y[:2]} == {1}
+    far = sorted(by_y[2:], key=lambda c: centres[c, 0])
+    assert [candidates[1][c][1] for c in far] == [0, 1]
     assert slot_assignments(centres[:3], 2, 2, 5) == slot_assignments(centres[:3], 2, 2, 5)[:5]
     assert len(slot_assignments(centres[:3], 2, 2, 100)) == 24  # 3 capacitors in 4 slots: 4·3·2
 
@@ -128,17 +131,20 @@ def test_a_plate_enclosed_by_another_is_named_with_where_it_is_blocked():
     assert not Polygon(u).convex_hull.contains(Point(x, y))  # nothing gets into the U
 
 
-def test_a_four_by_four_grid_routes_its_rows_round_each_other():
-    # The case that shaped the router: 16 plates 8 mm apart. Before plates were joined net
-    # by net first, pads kept a stub and lanes beside plates were costed, no assignment of
-    # 24 routed (docs/fabrication.md).
-    plates = grid_plates(4, 4, 12.0, 20.0, centre=(55.0, 60.0))
-    sheet = np.array([[0, 0], [110, 0], [110, 110], [0, 110.0]])
+@pytest.mark.parametrize("n", [4, 5])
+def test_square_grids_route_their_rows_round_each_other(n):
+    # The cases that shaped the router: n x n plates 8 mm apart. Before plates were joined
+    # net by net first, pads kept a stub and lanes beside plates were costed, no assignment
+    # of 24 routed 4 x 4; 5 x 5 routed only once the rows were nested from both ends of the
+    # pad row (docs/fabrication.md).
+    side = 20.0 * n + 30.0
+    plates = grid_plates(n, n, 12.0, 20.0, centre=(side / 2, side / 2 + 5.0))
+    sheet = np.array([[0, 0], [side, 0], [side, side], [0, side]])
     routing = route(plates, sheet, FabricationSettings(connector_edge="bottom", assignments=2))
-    assert (routing.array.rows, routing.array.columns) == (4, 4)
+    assert (routing.array.rows, routing.array.columns) == (n, n)
     for layer in ("bottom", "top"):
         nets = routing.layer(layer)
         for a, net in enumerate(nets):
-            assert net.conductor.geom_type == "Polygon" and len(net.capacitors) == 4
+            assert net.conductor.geom_type == "Polygon" and len(net.capacitors) == n
             for other in nets[a + 1:]:
                 assert net.conductor.distance(other.conductor) >= RULES.clearance_mm - 1e-3
