@@ -71,7 +71,7 @@ STUB_PITCHES = 2
 CROSSING_MM2 = 0.01
 #: The conductive layers, bottom first: rows in the bottom one, columns in the top one.
 LAYERS = ("bottom", "top")
-# Slot assignments tried on every edge before the budget goes to the best one.
+# Slot assignments tried on every edge, at most, before the budget goes to the best one.
 _FIRST_PER_EDGE = 7
 
 
@@ -196,13 +196,15 @@ def route(outlines, sheet_outline: np.ndarray, rules: FabricationSettings, progr
             f"{routing.overlap_mm2:.2f} mm2 of overlap{' (best so far)' if better else ''} "
             f"({time.perf_counter() - started:.1f} s)")
 
-    # Each edge with the read-out's default, the two nested and four banded assignments, then the rest
-    # of the budget on the best edge so far (on the other edges after it, while none routes).
+    # Half the budget over the edges (the read-out's default, then the nested and banded
+    # assignments, at most _FIRST_PER_EDGE each), then the rest on the best edge so far (on
+    # the other edges after it, while none routes).
+    first = max(1, min(_FIRST_PER_EDGE, rules.assignments // (2 * max(len(queues), 1))))  # half the budget
     for edge, (_, candidates) in queues.items():
-        for slots in candidates[:_FIRST_PER_EDGE]:
+        for slots in candidates[:first]:
             if tried < rules.assignments:
                 attempt(edge, slots)
-    rest = [(e, s) for e, (_, c) in queues.items() for s in c[_FIRST_PER_EDGE:]]
+    rest = [(e, s) for e, (_, c) in queues.items() for s in c[first:]]
     rest.sort(key=lambda item: best is None or item[0] != best.edge)
     for edge, slots in rest:
         if tried >= rules.assignments:
