@@ -43,6 +43,7 @@ _MIN_EDGE_MM = 1e-5
 #: Net outline vertices this close to a plate's edge are moved onto it (mm).
 _SNAP_MM = 1e-3
 
+
 @dataclass(frozen=True, eq=False)
 class Wiring:
     """How a design's plates become readings: ``bottom[i]`` and ``top[j]``, the conductor
