@@ -30,7 +30,7 @@ from shapely.geometry import Polygon
 
 from mscap.errors import FabricationError, MeshError
 from mscap.mesh.layered import BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER, LayeredMesh, extrude
-from mscap.mesh.triangulate import TriMesh, quality_grading_mm
+from mscap.mesh.triangulate import TriMesh, generate_2d, quality_grading_mm
 
 __all__ = ["Wiring", "wiring_of", "plates_only", "read_wiring_dir", "net_mesh", "wired_mesh", "readings"]
 
@@ -197,14 +197,7 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
                                DistMax=quality_grading_mm(settings)).items():
             field.setNumber(ramp, key, value)
         field.setAsBackgroundMesh(ramp)
-        for option in ("MeshSizeExtendFromBoundary", "MeshSizeFromPoints", "MeshSizeFromCurvature"):
-            gmsh.option.setNumber(f"Mesh.{option}", 0)
-        gmsh.option.setNumber("Mesh.Algorithm", 6)
-        gmsh.model.mesh.generate(2)
-        node_tags, coords, _ = gmsh.model.mesh.getNodes()
-        index = np.full(int(node_tags.max()) + 1, -1, dtype=np.int64)
-        index[node_tags.astype(np.int64)] = np.arange(len(node_tags))
-        points = coords.reshape(-1, 3)[:, :2].copy()
+        index, points = generate_2d(gmsh)
         types, _, element_nodes = gmsh.model.mesh.getElements(2)
         triangles = np.concatenate([index[n.astype(np.int64)].reshape(-1, 3)
                                     for t, n in zip(types, element_nodes) if t == 2])

@@ -47,7 +47,7 @@ from mscap.geometry.layout import Layout
 from mscap.mesh.shape import MeshQuality, assess
 from mscap.scene.settings import MeshSettings
 
-__all__ = ["TriMesh", "triangulate", "quality_grading_mm", "MAX_SLOPE", "CORNER_SLOPE", "CORNER_REACH",
+__all__ = ["TriMesh", "triangulate", "generate_2d", "quality_grading_mm", "MAX_SLOPE", "CORNER_SLOPE", "CORNER_REACH",
            "FEATURE_FRACTION"]
 
 log = logging.getLogger(__name__)
@@ -158,6 +158,21 @@ def quality_grading_mm(settings: MeshSettings, slope: float = MAX_SLOPE) -> floa
     return max(settings.grading_distance_mm, (settings.edge_length_mm - settings.edge_length_outline_mm) / slope)
 
 
+def generate_2d(gmsh) -> tuple[np.ndarray, np.ndarray]:
+    """Mesh the current gmsh model in 2D by its background size field alone, Frontal-Delaunay;
+    return the index of each node tag and the nodes' (x, y) (mm)."""
+    for option in ("MeshSizeExtendFromBoundary", "MeshSizeFromPoints", "MeshSizeFromCurvature"):
+        gmsh.option.setNumber(f"Mesh.{option}", 0)
+    # Frontal-Delaunay: gmsh's Delaunay (5) is 10 % faster but follows the size ramp off the
+    # outlines worse: up to 22 % capacitance error where this has 5 % (docs/electrostatics.md).
+    gmsh.option.setNumber("Mesh.Algorithm", 6)
+    gmsh.model.mesh.generate(2)
+    node_tags, coords, _ = gmsh.model.mesh.getNodes()
+    index_of_tag = np.full(int(node_tags.max()) + 1, -1, dtype=np.int64)
+    index_of_tag[node_tags.astype(np.int64)] = np.arange(len(node_tags))
+    return index_of_tag, coords.reshape(-1, 3)[:, :2].copy()
+
+
 def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSettings,
                 auxiliary: bool = False) -> TriMesh:
     """Mesh the sheet with the layout's outlines embedded, to :mod:`mscap.mesh.shape`'s
@@ -261,17 +276,7 @@ def _triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSet
         smallest = field.add("Min")
         field.setNumbers(smallest, "FieldsList", bounds)
         field.setAsBackgroundMesh(smallest)
-        for option in ("MeshSizeExtendFromBoundary", "MeshSizeFromPoints", "MeshSizeFromCurvature"):
-            gmsh.option.setNumber(f"Mesh.{option}", 0)
-        # Frontal-Delaunay: gmsh's Delaunay (5) is 10 % faster but follows the size ramp off the
-        # outlines worse: up to 22 % capacitance error where this has 5 % (docs/electrostatics.md).
-        gmsh.option.setNumber("Mesh.Algorithm", 6)
-        gmsh.model.mesh.generate(2)
-
-        node_tags, coords, _ = gmsh.model.mesh.getNodes()
-        index_of_tag = np.full(int(node_tags.max()) + 1, -1, dtype=np.int64)
-        index_of_tag[node_tags.astype(np.int64)] = np.arange(len(node_tags))
-        points = coords.reshape(-1, 3)[:, :2].copy()
+        index_of_tag, points = generate_2d(gmsh)
         triangles, owner = [], []
         for capacitor, surface in [(-1, sheet_surface)] + list(enumerate(plate_surfaces)):
             types, _, element_nodes = gmsh.model.mesh.getElements(2, surface)

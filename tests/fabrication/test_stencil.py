@@ -7,9 +7,6 @@ column lead (the router's own choice, the right edge and other slots, crosses no
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import ezdxf
 import numpy as np
 import pytest
@@ -22,11 +19,8 @@ from mscap.fabrication.check import check_layer
 from mscap.fabrication.report import FABRICATION_FILES, write_fabrication
 from mscap.fabrication.router import route
 from mscap.fabrication.stencil import read_stencil
-from mscap.scene import load_scene
 from mscap.scene.settings import EPSILON0_PF_PER_MM, FabricationSettings
-from tests.conftest import SMALL_SCENE, to_toml
-
-DATA = Path(__file__).parent / "data" / "pneumatic_quick_k3.json"
+from tests.fabrication.conftest import pneumatic_design
 RULES = FabricationSettings()
 
 
@@ -39,14 +33,8 @@ def even_odd(rings):
 
 @pytest.fixture(scope="module")
 def written(tmp_path_factory):
-    design = json.loads(DATA.read_text())
     tmp = tmp_path_factory.mktemp("fabricate")
-    scene_dict = dict(SMALL_SCENE, sheet={"outline_mm": design["sheet_mm"]})
-    scene_dict["capacitors"] = {"min_gap_mm": 2.0, "outlines_mm": design["outlines_mm"]}
-    scene_dict["fabrication"] = {"connector_edge": "top", "assignments": 1}
-    (tmp / "scene.toml").write_text(to_toml(scene_dict))
-    scene = load_scene(tmp / "scene.toml")
-    plates = [np.array(o) for o in design["outlines_mm"]]
+    scene, plates = pneumatic_design(tmp)
     routing = route(plates, scene.sheet_outline_mm, scene.fabrication)
     document = write_fabrication(routing, tmp / "out", scene, "pneumatic k3")
     return tmp / "out", [Polygon(p) for p in plates], document, scene

@@ -5,9 +5,6 @@ of pneumatic_quick's design routed to the top edge (tests/fabrication/data)."""
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -16,23 +13,15 @@ from mscap.fabrication.report import write_fabrication
 from mscap.fabrication.router import route
 from mscap.fabrication.wired import plates_only, read_wiring_dir, readings, wired_mesh, wiring_of
 from mscap.mesh.layered import BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER
-from mscap.scene import load_scene
 from mscap.scene.settings import EPSILON0_PF_PER_MM
 from tests.conftest import SMALL_SCENE, to_toml
-
-DATA = Path(__file__).parent / "data" / "pneumatic_quick_k3.json"
+from tests.fabrication.conftest import pneumatic_design
 
 
 @pytest.fixture(scope="module")
 def routed(tmp_path_factory):
-    design = json.loads(DATA.read_text())
     tmp = tmp_path_factory.mktemp("wired")
-    scene_dict = dict(SMALL_SCENE, sheet={"outline_mm": design["sheet_mm"]})
-    scene_dict["capacitors"] = {"min_gap_mm": 2.0, "outlines_mm": design["outlines_mm"]}
-    scene_dict["fabrication"] = {"connector_edge": "top", "assignments": 1}
-    (tmp / "scene.toml").write_text(to_toml(scene_dict))
-    scene = load_scene(tmp / "scene.toml")  # one free pose, rest: electrostatics only
-    outlines = [np.array(o) for o in design["outlines_mm"]]
+    scene, outlines = pneumatic_design(tmp)  # one free pose, rest: electrostatics only
     routing = route(outlines, scene.sheet_outline_mm, scene.fabrication)
     write_fabrication(routing, tmp / "fab", scene, "pneumatic k3")
     return scene, outlines, routing, tmp / "fab"
