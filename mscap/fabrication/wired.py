@@ -30,7 +30,7 @@ from shapely.geometry import Polygon
 
 from mscap.errors import FabricationError, MeshError
 from mscap.mesh.layered import BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER, LayeredMesh, extrude
-from mscap.mesh.triangulate import TriMesh, generate_2d, quality_grading_mm
+from mscap.mesh.triangulate import TriMesh, generate_2d, gmsh_model, quality_grading_mm
 
 __all__ = ["Wiring", "wiring_of", "plates_only", "read_wiring_dir", "net_mesh", "wired_mesh", "readings"]
 
@@ -138,8 +138,6 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
     MeshError
         When gmsh fails, or a triangle lies in no region it was meant to.
     """
-    import gmsh
-
     sheet = Polygon(np.asarray(sheet_outline, dtype=float))
     # Where the two layers' outlines run together (a plate's edge, in both) they must be
     # one curve, not two 1e-5 apart with needles between them: a fillet's closing moves a
@@ -161,50 +159,45 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
     top = [shapely.ops.unary_union([resampled(p) for p in getattr(n, "geoms", [n])]) for n in top]
     regions = [(layer, i, part) for layer, nets in (("bottom", bottom), ("top", top))
                for i, net in enumerate(nets) for part in getattr(net, "geoms", [net])]
-    gmsh.initialize(readConfigFiles=False, interruptible=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("General.NumThreads", 1)
-        gmsh.model.add("wired")
-        occ = gmsh.model.occ
+    with gmsh_model("wired") as gmsh:
+        try:
+            occ = gmsh.model.occ
 
-        def surface(polygon):
-            loops = []
-            for ring in [polygon.exterior] + list(polygon.interiors):
-                xy = np.asarray(ring.coords)[:-1]
-                points = [occ.addPoint(float(x), float(y), 0.0) for x, y in xy]
-                lines = [occ.addLine(points[i], points[(i + 1) % len(points)]) for i in range(len(points))]
-                loops.append(occ.addCurveLoop(lines))
-            return occ.addPlaneSurface(loops)
+            def surface(polygon):
+                loops = []
+                for ring in [polygon.exterior] + list(polygon.interiors):
+                    xy = np.asarray(ring.coords)[:-1]
+                    points = [occ.addPoint(float(x), float(y), 0.0) for x, y in xy]
+                    lines = [occ.addLine(points[i], points[(i + 1) % len(points)]) for i in range(len(points))]
+                    loops.append(occ.addCurveLoop(lines))
+                return occ.addPlaneSurface(loops)
 
-        sheet_tag = surface(sheet)
-        tags = [surface(part) for _, _, part in regions]
-        occ.fragment([(2, sheet_tag)], [(2, t) for t in tags])
-        occ.synchronize()
-        inner = []
-        for _, curve in gmsh.model.getEntities(1):  # every curve but the sheet's edge
-            x0, y0, _, x1, y1, _ = gmsh.model.getBoundingBox(1, curve)
-            middle = shapely.Point(0.5 * (x0 + x1), 0.5 * (y0 + y1))
-            if sheet.exterior.distance(middle) > 1e-6:
-                inner.append(curve)
-        field = gmsh.model.mesh.field
-        distance = field.add("Distance")
-        field.setNumbers(distance, "CurvesList", inner)
-        field.setNumber(distance, "Sampling", 200)
-        ramp = field.add("Threshold")
-        for key, value in dict(InField=distance, SizeMin=settings.edge_length_outline_mm,
-                               SizeMax=settings.edge_length_mm, DistMin=0.0,
-                               DistMax=quality_grading_mm(settings)).items():
-            field.setNumber(ramp, key, value)
-        field.setAsBackgroundMesh(ramp)
-        index, points = generate_2d(gmsh)
-        types, _, element_nodes = gmsh.model.mesh.getElements(2)
-        triangles = np.concatenate([index[n.astype(np.int64)].reshape(-1, 3)
-                                    for t, n in zip(types, element_nodes) if t == 2])
-    except Exception as exc:
-        raise MeshError(f"gmsh failed to mesh the wired sheet: {exc}") from exc
-    finally:
-        gmsh.finalize()
+            sheet_tag = surface(sheet)
+            tags = [surface(part) for _, _, part in regions]
+            occ.fragment([(2, sheet_tag)], [(2, t) for t in tags])
+            occ.synchronize()
+            inner = []
+            for _, curve in gmsh.model.getEntities(1):  # every curve but the sheet's edge
+                x0, y0, _, x1, y1, _ = gmsh.model.getBoundingBox(1, curve)
+                middle = shapely.Point(0.5 * (x0 + x1), 0.5 * (y0 + y1))
+                if sheet.exterior.distance(middle) > 1e-6:
+                    inner.append(curve)
+            field = gmsh.model.mesh.field
+            distance = field.add("Distance")
+            field.setNumbers(distance, "CurvesList", inner)
+            field.setNumber(distance, "Sampling", 200)
+            ramp = field.add("Threshold")
+            for key, value in dict(InField=distance, SizeMin=settings.edge_length_outline_mm,
+                                   SizeMax=settings.edge_length_mm, DistMin=0.0,
+                                   DistMax=quality_grading_mm(settings)).items():
+                field.setNumber(ramp, key, value)
+            field.setAsBackgroundMesh(ramp)
+            index, points = generate_2d(gmsh)
+            types, _, element_nodes = gmsh.model.mesh.getElements(2)
+            triangles = np.concatenate([index[n.astype(np.int64)].reshape(-1, 3)
+                                        for t, n in zip(types, element_nodes) if t == 2])
+        except Exception as exc:
+            raise MeshError(f"gmsh failed to mesh the wired sheet: {exc}") from exc
     used = np.zeros(len(points), dtype=bool)
     used[triangles] = True
     renumber = np.cumsum(used) - 1

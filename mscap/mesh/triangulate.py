@@ -37,6 +37,7 @@ from __future__ import annotations
 import logging
 import signal
 import threading
+from contextlib import contextmanager
 from dataclasses import dataclass, field as dataclass_field
 
 import numpy as np
@@ -152,6 +153,24 @@ def _restore(dispositions: dict) -> None:
             signal.signal(s, handler)
 
 
+@contextmanager
+def gmsh_model(name: str):
+    """gmsh initialised with one empty model ``name``, quiet and single-threaded; finalised
+    after, with the signal handlers it replaced put back (:data:`_KEPT_SIGNALS`)."""
+    import gmsh  # imported here: loading gmsh costs ~0.2 s that non-meshing commands skip
+
+    kept = _signal_dispositions()
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("General.NumThreads", 1)
+        gmsh.model.add(name)
+        yield gmsh
+    finally:
+        gmsh.finalize()
+        _restore(kept)
+
+
 def quality_grading_mm(settings: MeshSettings, slope: float = MAX_SLOPE) -> float:
     """The grading distance the mesher uses: ``settings.grading_distance_mm``, or longer
     where that would make the edge length grow faster than ``slope`` mm per mm."""
@@ -201,97 +220,88 @@ def triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSett
 
 def _triangulate(sheet_outline_mm: np.ndarray, layout: Layout, settings: MeshSettings, gentle: float) -> TriMesh:
     """One gmsh triangulation, every slope and the feature fraction scaled by ``gentle``."""
-    import gmsh  # imported here: loading gmsh costs ~0.2 s that non-meshing commands skip
+    with gmsh_model("sheet") as gmsh:
+        try:
+            geo = gmsh.model.geo
+            loops, outline_curves = [], []
+            for outline in layout.outlines:
+                loop, lines = _add_loop(geo, outline, settings.edge_length_outline_mm, settings.zones)
+                loops.append(loop)
+                outline_curves.extend(lines)
+            sheet_loop, sheet_curves = _add_loop(geo, sheet_outline_mm)
+            sheet_surface = geo.addPlaneSurface([sheet_loop] + loops)
+            plate_surfaces = [geo.addPlaneSurface([loop]) for loop in loops]
+            corner_points = [geo.addPoint(float(x), float(y), 0.0)
+                             for o in layout.outlines for x, y in o[geometry.turning(o, CORNER_TURN_DEG)]]
+            geo.synchronize()
 
-    kept = _signal_dispositions()
-    gmsh.initialize(readConfigFiles=False, interruptible=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("General.NumThreads", 1)
-        gmsh.model.add("sheet")
-        geo = gmsh.model.geo
-        loops, outline_curves = [], []
-        for outline in layout.outlines:
-            loop, lines = _add_loop(geo, outline, settings.edge_length_outline_mm, settings.zones)
-            loops.append(loop)
-            outline_curves.extend(lines)
-        sheet_loop, sheet_curves = _add_loop(geo, sheet_outline_mm)
-        sheet_surface = geo.addPlaneSurface([sheet_loop] + loops)
-        plate_surfaces = [geo.addPlaneSurface([loop]) for loop in loops]
-        corner_points = [geo.addPoint(float(x), float(y), 0.0)
-                         for o in layout.outlines for x, y in o[geometry.turning(o, CORNER_TURN_DEG)]]
-        geo.synchronize()
-
-        field = gmsh.model.mesh.field
-        distance = field.add("Distance")
-        field.setNumbers(distance, "CurvesList", outline_curves)
-        longest = max(float(np.max(np.linalg.norm(np.roll(o, -1, 0) - o, axis=1))) for o in layout.outlines)
-        field.setNumber(distance, "Sampling", int(np.ceil(4 * longest / settings.edge_length_outline_mm)) + 1)
-        near, far = settings.edge_length_outline_mm, settings.edge_length_mm
-        grading = quality_grading_mm(settings, gentle * MAX_SLOPE)
-        ramp = _threshold(field, distance, near, far, 0.0, grading)
-        if settings.fringe_distance_mm > 0:
-            # gentle within the fringe zone, then the steeper ramp: it starts late enough to
-            # cross the gentle one at fringe_distance_mm
-            slope = gentle * min(settings.fringe_slope, MAX_SLOPE)
-            gentle_ramp = _threshold(field, distance, near, far, 0.0, (far - near) / slope)
-            steep = (far - near) / grading
-            start = settings.fringe_distance_mm * (1.0 - slope / steep) if steep > slope \
-                else settings.fringe_distance_mm
-            late = _threshold(field, distance, near, far, start, start + grading)
-            ramp = field.add("Max")
-            field.setNumbers(ramp, "FieldsList", [gentle_ramp, late])
-        bounds = [ramp]
-        if corner_points:
-            to_corner = field.add("Distance")
-            field.setNumbers(to_corner, "PointsList", corner_points)
-            # slope CORNER_SLOPE up to CORNER_REACH outline edges from the corner, then MAX_SLOPE
-            slope, steep, reach = gentle * CORNER_SLOPE, gentle * MAX_SLOPE, CORNER_REACH * near
-            around = field.add("MathEval")
-            field.setString(around, "F", f"max({near!r} + {slope!r} * F{to_corner}, "
-                                         f"{near!r} + {steep!r} * F{to_corner} - {(steep - slope) * reach!r})")
-            bounds.append(around)
-        to_sheet = field.add("Distance")
-        field.setNumbers(to_sheet, "CurvesList", sheet_curves)
-        sheet_length = float(np.linalg.norm(np.diff(geometry.edges(np.asarray(sheet_outline_mm, float)), axis=1),
-                                            axis=-1).max())
-        field.setNumber(to_sheet, "Sampling", int(np.ceil(4 * sheet_length / near)) + 1)
-        strip = field.add("MathEval")
-        # never below the outline edge: a coarse (elastic) mesh would otherwise be refined
-        # beside every plate near the sheet edge
-        field.setString(strip, "F", f"max({near!r}, {gentle * FEATURE_FRACTION!r} * (F{distance} + F{to_sheet}))")
-        bounds.append(strip)
-        for x, y, radius, size in settings.zones:
-            ball = field.add("Ball")
-            for key, value in dict(XCenter=x, YCenter=y, ZCenter=0.0, Radius=radius, VIn=min(size, far), VOut=far,
-                                   Thickness=max(far - size, 0.0) / (gentle * ZONE_SLOPE)).items():
-                field.setNumber(ball, key, value)
-            bounds.append(ball)
-        for x0, y0, x1, y1, size in settings.strips:
-            box = field.add("Box")
-            for key, value in dict(XMin=x0, YMin=y0, XMax=x1, YMax=y1, ZMin=-1.0, ZMax=1.0, VIn=min(size, far),
-                                   VOut=far, Thickness=max(far - size, 0.0) / (gentle * ZONE_SLOPE)).items():
-                field.setNumber(box, key, value)
-            bounds.append(box)
-        smallest = field.add("Min")
-        field.setNumbers(smallest, "FieldsList", bounds)
-        field.setAsBackgroundMesh(smallest)
-        index_of_tag, points = generate_2d(gmsh)
-        triangles, owner = [], []
-        for capacitor, surface in [(-1, sheet_surface)] + list(enumerate(plate_surfaces)):
-            types, _, element_nodes = gmsh.model.mesh.getElements(2, surface)
-            if len(types) != 1 or types[0] != 2:
-                raise MeshError(f"gmsh returned non-triangle elements on surface {surface}")
-            tri = index_of_tag[element_nodes[0].astype(np.int64)].reshape(-1, 3)
-            triangles.append(tri)
-            owner.append(np.full(len(tri), capacitor, dtype=np.int64))
-    except Exception as exc:
-        if isinstance(exc, MeshError):
-            raise
-        raise MeshError(f"gmsh failed to mesh the sheet: {exc}") from exc
-    finally:
-        gmsh.finalize()
-        _restore(kept)
+            field = gmsh.model.mesh.field
+            distance = field.add("Distance")
+            field.setNumbers(distance, "CurvesList", outline_curves)
+            longest = max(float(np.max(np.linalg.norm(np.roll(o, -1, 0) - o, axis=1))) for o in layout.outlines)
+            field.setNumber(distance, "Sampling", int(np.ceil(4 * longest / settings.edge_length_outline_mm)) + 1)
+            near, far = settings.edge_length_outline_mm, settings.edge_length_mm
+            grading = quality_grading_mm(settings, gentle * MAX_SLOPE)
+            ramp = _threshold(field, distance, near, far, 0.0, grading)
+            if settings.fringe_distance_mm > 0:
+                # gentle within the fringe zone, then the steeper ramp: it starts late enough to
+                # cross the gentle one at fringe_distance_mm
+                slope = gentle * min(settings.fringe_slope, MAX_SLOPE)
+                gentle_ramp = _threshold(field, distance, near, far, 0.0, (far - near) / slope)
+                steep = (far - near) / grading
+                start = settings.fringe_distance_mm * (1.0 - slope / steep) if steep > slope \
+                    else settings.fringe_distance_mm
+                late = _threshold(field, distance, near, far, start, start + grading)
+                ramp = field.add("Max")
+                field.setNumbers(ramp, "FieldsList", [gentle_ramp, late])
+            bounds = [ramp]
+            if corner_points:
+                to_corner = field.add("Distance")
+                field.setNumbers(to_corner, "PointsList", corner_points)
+                # slope CORNER_SLOPE up to CORNER_REACH outline edges from the corner, then MAX_SLOPE
+                slope, steep, reach = gentle * CORNER_SLOPE, gentle * MAX_SLOPE, CORNER_REACH * near
+                around = field.add("MathEval")
+                field.setString(around, "F", f"max({near!r} + {slope!r} * F{to_corner}, "
+                                             f"{near!r} + {steep!r} * F{to_corner} - {(steep - slope) * reach!r})")
+                bounds.append(around)
+            to_sheet = field.add("Distance")
+            field.setNumbers(to_sheet, "CurvesList", sheet_curves)
+            sheet_length = float(np.linalg.norm(np.diff(geometry.edges(np.asarray(sheet_outline_mm, float)), axis=1),
+                                                axis=-1).max())
+            field.setNumber(to_sheet, "Sampling", int(np.ceil(4 * sheet_length / near)) + 1)
+            strip = field.add("MathEval")
+            # never below the outline edge: a coarse (elastic) mesh would otherwise be refined
+            # beside every plate near the sheet edge
+            field.setString(strip, "F", f"max({near!r}, {gentle * FEATURE_FRACTION!r} * (F{distance} + F{to_sheet}))")
+            bounds.append(strip)
+            for x, y, radius, size in settings.zones:
+                ball = field.add("Ball")
+                for key, value in dict(XCenter=x, YCenter=y, ZCenter=0.0, Radius=radius, VIn=min(size, far), VOut=far,
+                                       Thickness=max(far - size, 0.0) / (gentle * ZONE_SLOPE)).items():
+                    field.setNumber(ball, key, value)
+                bounds.append(ball)
+            for x0, y0, x1, y1, size in settings.strips:
+                box = field.add("Box")
+                for key, value in dict(XMin=x0, YMin=y0, XMax=x1, YMax=y1, ZMin=-1.0, ZMax=1.0, VIn=min(size, far),
+                                       VOut=far, Thickness=max(far - size, 0.0) / (gentle * ZONE_SLOPE)).items():
+                    field.setNumber(box, key, value)
+                bounds.append(box)
+            smallest = field.add("Min")
+            field.setNumbers(smallest, "FieldsList", bounds)
+            field.setAsBackgroundMesh(smallest)
+            index_of_tag, points = generate_2d(gmsh)
+            triangles, owner = [], []
+            for capacitor, surface in [(-1, sheet_surface)] + list(enumerate(plate_surfaces)):
+                types, _, element_nodes = gmsh.model.mesh.getElements(2, surface)
+                if len(types) != 1 or types[0] != 2:
+                    raise MeshError(f"gmsh returned non-triangle elements on surface {surface}")
+                tri = index_of_tag[element_nodes[0].astype(np.int64)].reshape(-1, 3)
+                triangles.append(tri)
+                owner.append(np.full(len(tri), capacitor, dtype=np.int64))
+        except Exception as exc:
+            if isinstance(exc, MeshError):
+                raise
+            raise MeshError(f"gmsh failed to mesh the sheet: {exc}") from exc
 
     triangles = np.concatenate(triangles)
     owner = np.concatenate(owner)
