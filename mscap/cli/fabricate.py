@@ -47,7 +47,10 @@ def run(args) -> int:
             raise FabricationError(f"fabricate {source}: --run names a run of a results file, and this is an "
                                    f"`mscap optimize` directory")
         stored = read_optimize_output(source)
-        scene = load_scene(args.scene or stored.summary.get("scene", ""))
+        scene_path = args.scene or stored.summary.get("scene")
+        if not isinstance(scene_path, str) or not scene_path:
+            raise FabricationError(f"fabricate {source}: summary.json names no scene file; give --scene")
+        scene = load_scene(scene_path)
         outlines, label = stored.outlines, f"{source.name} (optimised)"
     else:
         with read_store(source) as store:

@@ -124,3 +124,5 @@ def test_unroutable_designs_and_taken_outputs_are_one_line_and_write_nothing(sma
                    "missing.h5: cannot open as HDF5")
     one_line_error(capsys, ["fabricate", str(run), "--run", "k2_s1_lloyd", "-o", str(tmp_path / "fab")],
                    "--run names a run of a results file")
+    (run / "summary.json").write_text("{}")
+    one_line_error(capsys, ["fabricate", str(run), "-o", str(tmp_path / "fab")], "names no scene file; give --scene")
