@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -278,22 +277,11 @@ def readings(scene, wiring: Wiring, mesh: LayeredMesh | None = None, progress=No
     wired mesh: ``(n_poses, k)`` readings, capacitor c's the mutual capacitance of its
     row and column conductors, ``−C(bottom i, top j)`` of the Maxwell matrix (pF); and each
     pose's wall time (s)."""
-    from mscap.fem import electrostatic
-    from mscap.fem.petsc import LinearSolver
     from mscap.fem.simulate import simulate
 
     mesh = mesh or wired_mesh(scene, wiring)
-    sim = simulate(scene, mesh=mesh, keep_fields=True, progress=progress, every_plate=False)
+    sim = simulate(scene, mesh=mesh, keep_fields=False, progress=progress, every_plate=False, maxwell=True)
     k = mesh.n_capacitors
-    out = np.full((len(sim.poses), len(wiring.slots)), np.nan)
+    out = np.array([[-pose.capacitances.maxwell_pF[i, k + j] for i, j in wiring.slots] for pose in sim.poses])
     wall = np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])
-    solver = LinearSolver("electro_")
-    try:
-        for p, pose in enumerate(sim.poses):
-            t = time.perf_counter()
-            maxwell = electrostatic.solve(sim.electro, pose.vertices, maxwell=True, solver=solver).maxwell_pF
-            out[p] = [-maxwell[i, k + j] for i, j in wiring.slots]
-            wall[p] += time.perf_counter() - t
-    finally:
-        solver.destroy()
     return out, wall

@@ -89,7 +89,7 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
              mesh: LayeredMesh | None = None, keep_factorisation: bool = False, keep_fields: bool = True,
              out_of_core: bool = False, progress: Callable[[str], None] | None = None,
              starts: Callable[[ElasticProblem], Sequence[np.ndarray | None]] | None = None,
-             every_plate: bool = True) -> Simulation:
+             every_plate: bool = True, maxwell: bool = False) -> Simulation:
     """Simulate every pose of ``scene``.
 
     Parameters
@@ -119,6 +119,8 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     every_plate
         Require both plates of every capacitor (``False``: a wired sensor's mesh, whose
         nets are the plates, :mod:`mscap.fabrication.wired`).
+    maxwell
+        Also each pose's Maxwell matrix (``capacitances.maxwell_pF``; twice the solves).
     """
     start = time.perf_counter()
     meshed_here = mesh is None
@@ -158,7 +160,8 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
         raise
     solver = LinearSolver("electro_", out_of_core)
     try:
-        results = capacitances(sim, scene, states, elastic_s, solver, keep_fields=keep_fields, progress=progress)
+        results = capacitances(sim, scene, states, elastic_s, solver, keep_fields=keep_fields, progress=progress,
+                               maxwell=maxwell)
     finally:
         solver.destroy()
     end = time.perf_counter()
@@ -250,7 +253,7 @@ def equilibria(sim: Simulation, scene: Scene, operator: Operator | None,
 
 def capacitances(sim: Simulation, scene: Scene, states: Sequence[ElasticState | None], elastic_s: Sequence[float],
                  solver: LinearSolver, keep_fields: bool = True,
-                 progress: Callable[[str], None] | None = None) -> tuple[PoseResult, ...]:
+                 progress: Callable[[str], None] | None = None, maxwell: bool = False) -> tuple[PoseResult, ...]:
     """Every pose's capacitances on ``sim.electro`` at the equilibria ``states`` (from
     :func:`equilibria`). Without ``keep_fields`` a result's ``capacitances.potentials`` and
     ``vertices`` are ``None``. On a failure (e.g. an inverted tet at a rejected line-search
@@ -262,7 +265,7 @@ def capacitances(sim: Simulation, scene: Scene, states: Sequence[ElasticState | 
             vertices = sim.mesh.points if state is None else sim.vertices(state.nodes)
             t1 = time.perf_counter()
             try:
-                caps = electrostatic.solve(sim.electro, vertices, solver=solver)
+                caps = electrostatic.solve(sim.electro, vertices, maxwell=maxwell, solver=solver)
             except ElectrostaticError as exc:
                 raise type(exc)(f"pose {pose.name!r}: {exc}") from exc  # InvertedMeshError stays one
             t2 = time.perf_counter()
