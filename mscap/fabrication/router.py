@@ -30,7 +30,8 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 import shapely
@@ -121,7 +122,12 @@ class Routing:
 
     def overlaps(self) -> list[dict]:
         """Every place a row conductor lies under a column conductor outside the plate of
-        their capacitor: ``row``, ``column``, ``area_mm2`` and ``centroid_mm``."""
+        their capacitor: ``row``, ``column``, ``area_mm2`` and ``centroid_mm`` (fresh
+        dicts; measured once per routing)."""
+        return [dict(o) for o in self._overlaps]
+
+    @cached_property
+    def _overlaps(self) -> tuple[dict, ...]:
         plate_of = {slot: c for c, slot in enumerate(self.array.slots)}
         out = []
         for r in self.layer("bottom"):
@@ -134,11 +140,11 @@ class Routing:
                     if part.area > 1e-6:
                         out.append({"row": i, "column": j, "area_mm2": float(part.area),
                                     "centroid_mm": [round(part.centroid.x, 4), round(part.centroid.y, 4)]})
-        return out
+        return tuple(out)
 
     @property
     def overlap_mm2(self) -> float:
-        return sum(o["area_mm2"] for o in self.overlaps())
+        return sum(o["area_mm2"] for o in self._overlaps)
 
     @property
     def cost(self) -> float:
@@ -175,17 +181,16 @@ def route(outlines, sheet_outline: np.ndarray, rules: FabricationSettings, progr
             continue
         centres = np.array([affinity.rotate(p.centroid, EDGE_ROTATION[edge], origin=(0, 0)).coords[0]
                             for p in plates])
-        queues[edge] = ((pads, masks, ends), slot_assignments(centres, array.rows, array.columns, rules.assignments))
+        queues[edge] = (_edge_context(sheet, plates, pads, masks, ends, rules),
+                        slot_assignments(centres, array.rows, array.columns, rules.assignments))
 
     budget = min(rules.assignments, sum(len(c) for _, c in queues.values()))
 
     def attempt(edge, slots):
         nonlocal best, tried
         tried += 1
-        (pads, masks, ends), _ = queues[edge]
         try:
-            routing = _route_assignment(CapacitorArray(array.rows, array.columns, slots), edge, sheet, plates,
-                                        pads, masks, ends, rules)
+            routing = _route_assignment(CapacitorArray(array.rows, array.columns, slots), edge, queues[edge][0])
         except FabricationError as exc:
             failures.append(f"{edge} edge, slots {list(slots)}: {exc}")
             say(f"route {tried}/{budget}: {edge} edge: no route ({time.perf_counter() - started:.1f} s)")
@@ -239,19 +244,16 @@ def _check_plates(plates: list[Polygon], sheet: Polygon, rules: FabricationSetti
                                        f"{rules.clearance_mm:g}: in one conductive layer they are different nets")
 
 
-def _route_assignment(array: CapacitorArray, edge: str, sheet: Polygon, plates: list[Polygon], pads, masks, ends,
-                      rules: FabricationSettings) -> Routing:
-    """Route every net of one slot assignment: the bottom layer, then the top one (whose
-    leads avoid the bottom's), then the bottom again against the top's leads."""
+def _edge_context(sheet: Polygon, plates: list[Polygon], pads, masks, ends, rules: FabricationSettings) -> "_Context":
+    """What every slot assignment on one connector edge shares: the routing grid and the
+    masks of the plates, the pads, their strips and stubs (made once per edge, not per
+    assignment)."""
     f = rules
     h = routing_grid_mm(f)
     grid = Grid.covering(sheet.bounds, h, tuple(ends[0]))
     half = 0.5 * f.trace_width_mm
     margin = h / np.sqrt(2.0)
     corridor = grid.mask(sheet.buffer(-(f.edge_distance_mm + half)))
-    members = {}
-    for name, layer, lead in _nets(array):
-        members[name] = [c for c, (i, j) in enumerate(array.slots) if (i if layer == "bottom" else j) == int(name[1:])]
     inner = [grid.mask(p.buffer(-half - 1e-6)) for p in plates]
     keep_out = [grid.mask(p, f.clearance_mm + half + margin) for p in plates]
     pad_inner = [grid.mask(pad.buffer(-half - 1e-6)) | grid.mask(Point(e).buffer(0.25 * h)) for pad, e in zip(pads, ends)]
@@ -273,8 +275,17 @@ def _route_assignment(array: CapacitorArray, edge: str, sheet: Polygon, plates: 
         stub = (LineString([end, end + depth * inward]).buffer(0.5 * f.pad_width_mm, cap_style="flat")
                 if depth > 0 else Polygon())
         stubs.append(grid.mask(unary_union([pad, stub]), f.clearance_mm + half + margin))
-    context = _Context(grid, corridor, inner, keep_out, pad_inner, pad_out, rays, stubs, plates, pads, sheet, f,
-                       members)
+    return _Context(grid, corridor, inner, keep_out, pad_inner, pad_out, rays, stubs, plates, pads, masks, sheet,
+                    sheet.buffer(-f.edge_distance_mm), f, {}, {})
+
+
+def _route_assignment(array: CapacitorArray, edge: str, shared: "_Context") -> Routing:
+    """Route every net of one slot assignment on the ``edge`` whose :func:`_edge_context`
+    is ``shared``: the bottom layer, then the top one (whose leads avoid the bottom's), then
+    the bottom again against the top's leads."""
+    members = {name: [c for c, (i, j) in enumerate(array.slots) if (i if layer == "bottom" else j) == int(name[1:])]
+               for name, layer, _ in _nets(array)}
+    context = replace(shared, members=members, lead_of={name: lead for name, _, lead in _nets(array)})
     order = list(_nets(array))
     error = None
     for attempt in _orders(order):  # within a layer, an earlier lead can wall a later one in
@@ -285,9 +296,9 @@ def _route_assignment(array: CapacitorArray, edge: str, sheet: Polygon, plates: 
                 # Every net's plates joined first: a pad's lead then goes round the other
                 # nets' rows of plates instead of between two plates another net must join.
                 for name, layer_, lead in group:
-                    nets[name] = _route_net(context, name, layer_, lead, nets, masks, "plates")
+                    nets[name] = _route_net(context, name, layer_, lead, nets, "plates")
                 for name, layer_, lead in group:
-                    nets[name] = _route_net(context, name, layer_, lead, nets, masks, "pad")
+                    nets[name] = _route_net(context, name, layer_, lead, nets, "pad")
             break
         except FabricationError as exc:
             error = error or exc
@@ -296,11 +307,12 @@ def _route_assignment(array: CapacitorArray, edge: str, sheet: Polygon, plates: 
     for name, layer, lead in attempt:  # the bottom again, now costing the top's leads
         if layer == "bottom":
             try:  # everything else stays as it is, so either route is valid: keep the old one if need be
-                partial = _route_net(context, name, layer, lead, {**nets, name: None}, masks, "plates")
-                nets[name] = _route_net(context, name, layer, lead, {**nets, name: partial}, masks, "pad")
+                partial = _route_net(context, name, layer, lead, {**nets, name: None}, "plates")
+                nets[name] = _route_net(context, name, layer, lead, {**nets, name: partial}, "pad")
             except FabricationError:
                 pass
-    return Routing(array, edge, tuple(nets[name] for name, _, _ in order), sheet, tuple(plates), f)
+    return Routing(array, edge, tuple(nets[name] for name, _, _ in order), context.sheet, tuple(context.plates),
+                   context.rules)
 
 
 def _orders(order: list) -> list[list]:
@@ -329,12 +341,15 @@ class _Context:
     stubs: list
     plates: list
     pads: list
+    masks: list
     sheet: Polygon
+    allowed: Polygon  # the sheet less the edge distance
     rules: FabricationSettings
-    members: dict
+    members: dict  # per assignment: each net's capacitors
+    lead_of: dict  # per assignment: each net's lead (pad) index
 
 
-def _route_net(ctx: _Context, name: str, layer: str, lead: int, nets: dict, masks, stage: str) -> Net:
+def _route_net(ctx: _Context, name: str, layer: str, lead: int, nets: dict, stage: str) -> Net:
     """Route net ``name`` on the grid with the other nets of its layer (plates, pads and
     leads so far) kept out and the other layer's leads and pads costed
     (:data:`OVERLAP_WEIGHT_MM` per mm² of overlap): ``stage = "plates"`` joins its plates
@@ -349,17 +364,16 @@ def _route_net(ctx: _Context, name: str, layer: str, lead: int, nets: dict, mask
     for other, net in nets.items():
         if other == name:
             continue
-        other_layer_net = (other[0] == "R") != (layer == "bottom")
-        if other_layer_net:
+        if _layer_of(other) != layer:
             if net is not None:
                 other_layer.extend(_lead_polygons(net, f) + [net.pad])
             else:
-                other_layer.append(ctx.pads[_lead_index(other, nets)])
+                other_layer.append(ctx.pads[ctx.lead_of[other]])
             continue
         for c in ctx.members[other]:
             blocked |= ctx.keep_out[c]
         waiting_pad = net is None or not net.pad_joined
-        blocked |= (ctx.stubs if waiting_pad else ctx.pad_out)[_lead_index(other, nets)]
+        blocked |= (ctx.stubs if waiting_pad else ctx.pad_out)[ctx.lead_of[other]]
         if net is not None:
             same_layer.append(net.conductor)
             for lead_polygon in _lead_polygons(net, f):
@@ -372,30 +386,26 @@ def _route_net(ctx: _Context, name: str, layer: str, lead: int, nets: dict, mask
     cost = np.ones(grid.size)
     if other_geometry is not None:
         cost += OVERLAP_WEIGHT_MM * f.trace_width_mm * grid.mask(other_geometry, half)
-    pending = [other for other, net in nets.items() if other != name and (other[0] == "R") == (layer == "bottom")
-               and (net is None or not net.pad_joined)]
+    rivals = [o for o in nets if o != name and _layer_of(o) == layer]  # the other nets of this layer
+    rival_plates = unary_union([ctx.plates[c] for o in rivals for c in ctx.members[o]])
+    pending = [o for o in rivals if nets[o] is None or not nets[o].pad_joined]
     costly = []  # what the grid costs, as geometry: straightening a path may not add to it
     for other in pending:  # crossing in front of a pad still to be routed can wall it in
-        ray, ray_cells = ctx.rays[_lead_index(other, nets)]
+        ray, ray_cells = ctx.rays[ctx.lead_of[other]]
         cost += RAY_WEIGHT * ray_cells
         costly.append(ray)
     if pending:  # leave room beside the other nets' plates for the leads still to come
-        others = unary_union([ctx.plates[c] for o in ctx.members if o != name
-                              and (o[0] == "R") == (layer == "bottom") for c in ctx.members[o]])
         room = f.clearance_mm + half + margin + len(pending) * (f.trace_width_mm + f.clearance_mm)
-        cost += NEAR_WEIGHT * grid.mask(others, room)
-        costly.append(others.buffer(room, quad_segs=4))
+        cost += NEAR_WEIGHT * grid.mask(rival_plates, room)
+        costly.append(rival_plates.buffer(room, quad_segs=4))
     costly = unary_union(costly) if costly else None
-    forbidden = unary_union(same_layer + [ctx.plates[c] for o in ctx.members if o != name and
-                                          (o[0] == "R") == (layer == "bottom") for c in ctx.members[o]]
-                            + [ctx.pads[_lead_index(o, nets)] for o in nets if o != name
-                               and (o[0] == "R") == (layer == "bottom")])
-    allowed = ctx.sheet.buffer(-f.edge_distance_mm)
+    forbidden = unary_union(same_layer + [rival_plates] + [ctx.pads[ctx.lead_of[o]] for o in rivals])
+    allowed = ctx.allowed
     pad = ctx.pads[lead]
     if stage == "plates":
         paths: list = []
         if not own:
-            return Net(name, layer, lead, (), pad, masks[lead], (), Polygon(), pad_joined=False)
+            return Net(name, layer, lead, (), pad, ctx.masks[lead], (), Polygon(), pad_joined=False)
         first = min(own, key=lambda c: ctx.plates[c].distance(pad))
         tree = np.flatnonzero(ctx.inner[first])
         joined, waiting = [ctx.plates[first]], [c for c in own if c != first]
@@ -430,12 +440,12 @@ def _route_net(ctx: _Context, name: str, layer: str, lead: int, nets: dict, mask
         body = unary_union([body, closed.intersection(unary_union(leads).buffer(2 * r))])
     if body.geom_type == "MultiPolygon":  # slivers of round-off beside the conductor
         body = unary_union([p for p in body.geoms if p.area > 1e-6])
-    return Net(name, layer, lead, tuple(own), pad, masks[lead], tuple(paths), body, pad_joined=stage == "pad")
+    return Net(name, layer, lead, tuple(own), pad, ctx.masks[lead], tuple(paths), body, pad_joined=stage == "pad")
 
 
-def _lead_index(name: str, nets: dict) -> int:
-    rows = sum(1 for n in nets if n[0] == "R")
-    return int(name[1:]) if name[0] == "R" else rows + int(name[1:])
+def _layer_of(name: str) -> str:
+    """The conductive layer of net ``name``: rows (``R…``) below, columns (``C…``) above."""
+    return "bottom" if name[0] == "R" else "top"
 
 
 def _lead_polygons(net: Net, f: FabricationSettings) -> list:
@@ -457,7 +467,7 @@ def _blocked_message(ctx: _Context, name: str, layer: str, c: int, dist: np.ndar
     best = int(np.argmin(gaps))
     x, y = points[best]
     others = [d for other, cs in ctx.members.items() if other != name
-              and (other[0] == "R") == (layer == "bottom") for d in cs]
+              and _layer_of(other) == layer for d in cs]
     near = (f" next to capacitor {min(others, key=lambda d: Point(x, y).distance(ctx.plates[d]))}"
             if others else "")
     return (head + f"every path from its pad stops {gaps[best]:.3g} mm short of it, at ({x:.4g}, {y:.4g}) mm"

@@ -201,9 +201,9 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
     used[triangles] = True
     renumber = np.cumsum(used) - 1
     points, triangles = points[used], renumber[triangles]
-    a, b, c = (points[triangles[:, i]] for i in range(3))
-    flipped = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
-    triangles[flipped] = triangles[flipped][:, [0, 2, 1]]
+    signed = TriMesh(points.copy(), triangles.copy(), np.full(len(triangles), -1)).areas()
+    triangles[signed < 0] = triangles[signed < 0][:, [0, 2, 1]]
+    areas = np.abs(signed)
     centroid = points[triangles].mean(axis=1)
     label = {}
     for layer, nets in (("bottom", bottom), ("top", top)):
@@ -213,7 +213,7 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
     for layer, nets in (("bottom", bottom), ("top", top)):
         area = np.bincount(label[layer][label[layer] >= 0], minlength=len(nets))
         for i, net in enumerate(nets):
-            mesh_area = _areas(points, triangles[label[layer] == i]).sum()
+            mesh_area = areas[label[layer] == i].sum()
             if not abs(mesh_area - net.area) <= 1e-3 * net.area + 1e-3:
                 raise MeshError(f"the wired mesh covers {mesh_area:.6g} mm2 of {layer} conductor {i}, "
                                 f"whose outline holds {net.area:.6g} mm2 ({int(area[i])} triangles)")
@@ -257,11 +257,6 @@ def _resampled(xy: np.ndarray, plate_edges, plate_vertices, spacing: float) -> n
     if len(keep) > 1 and np.linalg.norm(xy[keep[-1]] - xy[0]) <= _MIN_EDGE_MM:
         keep.pop()
     return xy[keep] if len(keep) >= 3 else xy
-
-
-def _areas(points, triangles):
-    a, b, c = (points[triangles[:, i]] for i in range(3))
-    return 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
 
 
 def wired_mesh(scene, wiring: Wiring) -> LayeredMesh:
