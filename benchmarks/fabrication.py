@@ -4,12 +4,17 @@ grows with k (docs/fabrication.md).
     .venv/bin/python benchmarks/fabrication.py --design jobs/wrist_quick.toml=out/wrist.h5 \
         --design jobs/grid3x3.toml=layout --figures docs/fabrication
     .venv/bin/python benchmarks/fabrication.py --scaling 2 3 4 5
+    .venv/bin/python benchmarks/fabrication.py --design jobs/glove_quick.toml=out/glove.h5 --stiffness
 
 ``--design SCENE=RESULTS.h5`` routes the results file's chosen design under the scene's
 ``[fabrication]`` rules (``SCENE=layout``: the scene's own layout); one markdown row each:
 the array, the connector edge, lead length, row/column crossings, the overlap area and its parallel-plate
 rest capacitance against the plates', route and write times. ``--scaling N ...``: N × N
 grids of 12 mm plates at a 20 mm pitch, k = N², the same 24 slot assignments each.
+``--stiffness``: each routed design's readings over the scene's poses with the leads as
+stiff as the plates (the default) and as soft as the silicone around them, on the same
+meshes, and the plates alone on those meshes: how much the leads' stiffness, and the
+leads, move a reading and a pose-to-pose signal.
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ from mscap.service.designs import read_design
 from mscap.service.store import read_store
 
 
-def fabricate(spec: str, figures: Path | None) -> str:
+def fabricate(spec: str, figures: Path | None, stiffness: list | None = None) -> str:
     scene_path, source = spec.split("=", 1)
     scene = load_scene(scene_path)
     if source == "layout":
@@ -55,6 +60,8 @@ def fabricate(spec: str, figures: Path | None) -> str:
             shutil.copy(tmp / "out" / "preview.png", figures / f"fabrication_{scene.name}.png")
     finally:
         shutil.rmtree(tmp)
+    if stiffness is not None:
+        stiffness.append(lead_stiffness(scene, outlines, routing, label))
     plates = [s["plate_capacitance_pF"] for s in document["array"]["slots"]]
     share = max(s["lead_share"] for s in document["array"]["slots"])
     checks = document["design_rule_check"]["layers"]
@@ -65,6 +72,34 @@ def fabricate(spec: str, figures: Path | None) -> str:
             f"{document['overlap_mm2']:.2f} | {document['overlap_capacitance_pF']:.3f} | "
             f"{min(plates):.0f}-{max(plates):.0f} | {100 * share:.2f} % | {clearance:.2f} | "
             f"{routing.assignments_tried} | {routed:.1f} | {written:.1f} |")
+
+
+def lead_stiffness(scene, outlines, routing, label: str) -> str:
+    """One markdown row: the readings as wired with and without the leads' stiffness."""
+    from mscap.fabrication.wired import plates_only, readings, wiring_of
+    from mscap.geometry.layout import Layout
+    from mscap.scene.sizing import with_layout
+
+    scene = with_layout(scene, Layout(outlines))
+    wiring = wiring_of(routing)
+    started = time.perf_counter()
+    stiff, _ = readings(scene, wiring)
+    stiff_s = time.perf_counter() - started
+    started = time.perf_counter()
+    alone = plates_only(outlines, meshed_like=wiring)
+    soft, _ = readings(scene, wiring, stiffness=alone)  # the same meshes, the leads of the silicone around them
+    soft_s = time.perf_counter() - started
+    plates, _ = readings(scene, alone)
+
+    def signal_change(a, b):  # largest change of a pose-to-pose signal, % of that capacitor's range
+        da, db = a - a[0], b - b[0]
+        return 100 * np.max(np.abs(da - db) / np.ptp(a, axis=0))
+
+    reading = 100 * (stiff - soft) / soft
+    leads = 100 * (stiff - plates) / plates
+    return (f"| {scene.name} | {label} | {len(scene.poses)} | {reading.min():+.3f} … {reading.max():+.3f} % | "
+            f"{signal_change(stiff, soft):.2f} | {leads.min():+.3f} … {leads.max():+.3f} % | "
+            f"{signal_change(stiff, plates):.2f} | {soft_s:.1f} / {stiff_s:.1f} |")
 
 
 def scaling(sizes: list[int]) -> None:
@@ -94,13 +129,22 @@ def main(argv=None) -> int:
     parser.add_argument("--design", action="append", default=[], metavar="SCENE=RESULTS.h5|layout")
     parser.add_argument("--figures", type=Path, help="copy each preview to DIR/fabrication_<scene>.png")
     parser.add_argument("--scaling", type=int, nargs="*", metavar="N")
+    parser.add_argument("--stiffness", action="store_true",
+                        help="also each design's readings with and without the leads' stiffness")
     args = parser.parse_args(argv)
+    stiffness = [] if args.stiffness else None
     if args.design:
         print("| scene | design | k | array | connector | leads (mm) | crossings / overlap mm² | overlap pF | plates pF "
               "(parallel plate) | largest lead share | clearance (mm) | assignments | route (s) | write + check (s) |")
         print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for spec in args.design:
-            print(fabricate(spec, args.figures), flush=True)
+            print(fabricate(spec, args.figures, stiffness), flush=True)
+    if stiffness:
+        print("\n| scene | design | poses | readings, leads as stiff as plates against as soft as silicone | "
+              "largest signal change, % of its range | readings as wired against plates alone | largest signal "
+              "change, % of its range | simulate (s), soft / stiff leads |")
+        print("|---|---|---|---|---|---|---|---|")
+        print("\n".join(stiffness))
     if args.scaling:
         scaling(args.scaling)
     return 0

@@ -29,7 +29,7 @@ def add_parser(sub) -> None:
                         "own layout), a run id of the results file, or RUN:initial (default: initial)")
     p.add_argument("--wiring", metavar="FABRICATE_DIR",
                    help="also calibrate the design as wired: the nets of an `mscap fabricate` output directory "
-                        "(read from its stencils) and, for comparison, its plates alone on the same mesher")
+                        "(read from its stencils) and, for comparison, its plates alone on the same mesh")
     p.add_argument("-o", "--output", help="output directory (default: <results>_calibration/, or "
                                           "DIR/calibration/ for an optimize directory)")
     p.add_argument("--cache", help="simulation cache (default: <results>_calibration.h5, or "
@@ -87,14 +87,14 @@ def run(args) -> int:
     if rank == 0:
         output_directory(outdir, "calibrate -o")
     designs = [Candidate(label, outlines) for label, outlines in design_layouts(scene, args.design, args.baseline)]
-    if args.wiring:  # the design as wired, and its plates on the same mesher, before the baselines
+    if args.wiring:  # the design as wired, and its plates on the same mesh, before the baselines
         from mscap.fabrication.wired import plates_only, read_wiring_dir
 
         main = designs[0]
-        designs[1:1] = [Candidate(f"{main.label.split(' (')[0]} (as wired)", main.outlines,
-                                  read_wiring_dir(args.wiring, main.outlines)),
-                        Candidate(f"{main.label.split(' (')[0]} (plates, wired mesher)", main.outlines,
-                                  plates_only(main.outlines))]
+        wiring = read_wiring_dir(args.wiring, main.outlines)
+        designs[1:1] = [Candidate(f"{main.label.split(' (')[0]} (as wired)", main.outlines, wiring),
+                        Candidate(f"{main.label.split(' (')[0]} (plates, wired mesh)", main.outlines,
+                                  plates_only(main.outlines, meshed_like=wiring))]
     simulate_family(scene, designs, cache, comm, progress=progress_printer(args.quiet or rank > 0))
     if rank != 0:
         return 0

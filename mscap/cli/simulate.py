@@ -27,7 +27,7 @@ def add_parser(sub) -> None:
     p.add_argument("--wiring", metavar="FABRICATE_DIR",
                    help="simulate the design of an `mscap fabricate` output directory as wired (its nets, read "
                         "from its stencils, in place of the scene's layout): each capacitor's reading is the mutual "
-                        "capacitance of its row and column nets, beside its plates alone on the same mesher")
+                        "capacitance of its row and column nets, beside its plates alone on the same mesh")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     add_memory_option(p)
@@ -83,9 +83,9 @@ def _wired(args, scene) -> int:
     say = printer or (lambda line: None)
     say("simulating the design as wired")
     wired, _ = readings(scene, wiring, progress=printer)
-    say("simulating its plates alone on the same mesher")
-    plates, _ = readings(scene, plates_only([np.asarray(p.exterior.coords)[:-1] for p in wiring.plates]),
-                         progress=printer)
+    say("simulating its plates alone on the same mesh")
+    plates, _ = readings(scene, plates_only([np.asarray(p.exterior.coords)[:-1] for p in wiring.plates],
+                                            meshed_like=wiring), progress=printer)
     names = [p.name for p in scene.poses]
     if args.json:
         print(json.dumps({"scene": scene.name, "wiring": str(args.wiring), "poses": names,

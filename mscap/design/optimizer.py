@@ -25,6 +25,11 @@ curvature pairs still describe J; restarting it cost the wrist 10 % of its bound
 (docs/optimize.md, "Remeshing keeps the L-BFGS memory"). On convergence (relative J
 change in a step or over the last ``stall_window`` steps on one mesh, or gradient norm,
 per level) the controls double (:meth:`Design.refined`) for ``cascade_levels`` more levels.
+
+With ``[fabrication] route_during_optimisation`` the leads are routed at the start, after
+every remesh and refinement, and at the end (:meth:`Design.rerouted`); the evaluation there
+takes the new leads' share without a new solve (:meth:`Design.reevaluated`), and each
+re-route is kept in :attr:`OptimizeResult.reroutes`.
 """
 
 from __future__ import annotations
@@ -81,6 +86,9 @@ class OptimizeResult:
     iterations: int
     reason: str
     time_s: float
+    #: Each re-route of the leads (``[fabrication] route_during_optimisation``):
+    #: :class:`mscap.fabrication.during.Reroute`.
+    reroutes: tuple = ()
 
     @property
     def layout(self) -> Layout:
@@ -143,11 +151,30 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
     cascade_levels = settings.cascade_levels if cascade_levels is None else cascade_levels
     started = time.perf_counter()
     q = design.deformer.zeros() if q0 is None else np.array(q0, dtype=float)
+    level, iteration, level_iterations, reason = 0, 0, 0, ""
+    routed, reroutes = design.scene.fabrication.route_during_optimisation, []
     e = design.evaluate(q)
+
+    def reroute(event):  # the leads routed again at e.q; e re-evaluated with their share, no solve
+        nonlocal design, e
+        if not routed:
+            return
+        new = design.rerouted(e.q, say)
+        if new is design:
+            return
+        from mscap.fabrication.during import Reroute
+
+        before, old = e.J, e.offset_pF
+        design = new
+        e = design.reevaluated(e)
+        change = float(np.abs(e.offset_pF - (0.0 if old is None else old)).max())
+        reroutes.append(Reroute(event, iteration, change, before, e.J, design.wiring.summary, design.wiring.time_s))
+        say(f"rerouted ({event}): the leads' share moved by up to {change:.3g} pF; J {before:+.6e} -> {e.J:+.6e}")
+
+    reroute("start")
     g = _gradient(design, e)
     initial = e.detached(keep_elastic=True)
     memory = _LBFGS()
-    level, iteration, level_iterations, reason = 0, 0, 0, ""
     level_gradient = float(np.linalg.norm(g))
     fresh = min_angle(design, q)
     step_length = settings.first_step_mm
@@ -177,6 +204,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
         del new
         release_freed_memory()
         e = design.evaluate(design.deformer.zeros(), warm=warm)
+        reroute("remesh")
         g = _gradient(design, e)
         if not settings.keep_memory_at_remesh:
             memory.reset()
@@ -249,11 +277,13 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
             if not converged:
                 continue
             if level >= cascade_levels or reason in ("zero gradient", "pruned"):
+                reroute("end")
                 record(reason)
                 break
             design = design.refined(e.q)
             e.release()  # another mesh: its equilibria (kept) start the refined one, not its factorisations
             e = design.evaluate(design.deformer.zeros(), warm=e)
+            reroute("cascade")
             g = _gradient(design, e)
             memory.reset()
             level += 1
@@ -270,7 +300,8 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
             raise DesignError(f"iteration {iteration + 1} (level {level}): {exc}") from exc
         raise
     e.release()
-    return OptimizeResult(design, e, initial, tuple(history), iteration, reason, time.perf_counter() - started)
+    return OptimizeResult(design, e, initial, tuple(history), iteration, reason, time.perf_counter() - started,
+                          tuple(reroutes))
 
 
 def _on_this_mesh(history: list[Record]) -> list[float]:

@@ -20,6 +20,11 @@ The gradient is the chain of the objective's pieces:
     dJ/dq   = Wᵀ Σ_levels ∂J/∂X_fine,xy + (T2d W)ᵀ Σ_levels ∂J/∂X_el,xy
               + Wᵀ (∂(w_b B + w_s S)/∂outline vertices)
 
+Routed during the optimisation (``[fabrication] route_during_optimisation``), J is taken
+at ``C + ΔC``, ΔC the leads' share of every reading at the last route
+(:mod:`mscap.fabrication.during`, :attr:`Design.wiring`), held fixed between routes: the
+chain above is unchanged, ∂J/∂C taken at ``C + ΔC``.
+
 Each pose's Newton solve starts from its equilibrium at the previous accepted design,
 carried to the moved rest nodes with its deformation gradient (:meth:`Design.evaluate`
 ``warm=``, :meth:`Evaluation.starts_at`), one load step, so an optimisation iteration costs a
@@ -40,7 +45,7 @@ from mscap.design.history import min_pairwise_l1
 from mscap.design.objective import LayoutObjective, layout_objective
 from mscap.design.readback import design_scene
 from mscap.design.resolution import ErrorModel, error_model
-from mscap.errors import DesignError
+from mscap.errors import DesignError, FabricationError
 from mscap.fem.adjoint import moved, pose_rest_gradient
 from mscap.fem.elastic.problem import carried_displacement
 from mscap.fem.petsc import LinearSolver, Operator
@@ -83,6 +88,9 @@ class Evaluation:
     error_J: float = float("nan")
     margin_error_pF: float = float("nan")
     dJ_dC: np.ndarray | None = None
+    #: The leads' share in ``capacitance_pF`` (``[fabrication] route_during_optimisation``,
+    #: :mod:`mscap.fabrication.during`), ``None``: the plates alone.
+    offset_pF: np.ndarray | None = None
 
     @property
     def min_l1_pF(self) -> float:
@@ -172,6 +180,10 @@ class Design:
     #: Solvers reused by every evaluation (same patterns, so PETSc's symbolic
     #: factorisations are kept; a new KSP per evaluation also kept ~15 MB each alive).
     workspace: dict = field(default_factory=dict, repr=False)
+    #: The leads' share of every reading at the last route
+    #: (:class:`mscap.fabrication.during.WiringOffset`), added to the plates' capacitances
+    #: before J; ``None``: the plates alone.
+    wiring: object = None
 
     def close(self) -> None:
         """Destroy the PETSc solvers of :attr:`workspace` (their factorisations) now:
@@ -225,15 +237,49 @@ class Design:
             if not np.isfinite(result.capacitance_pF).all():
                 raise DesignError(f"pose {result.name!r}: capacitances {result.capacitance_pF} are not finite")
         sim = replace(sim, poses=results)
-        capacitance = sim.capacitance_pF
+        iterations = tuple(0 if r.state is None else r.state.newton_iterations for r in results)
+        return self._evaluation(q, sim.capacitance_pF, sim, iterations, outlines, outline_terms, started)
+
+    def _evaluation(self, q, plates_pF: np.ndarray, sim, iterations, outlines, outline_terms,
+                    started: float) -> Evaluation:
+        """The evaluation of the plates' capacitances ``plates_pF`` at ``q``: the leads'
+        share added (:attr:`wiring`), then J, ∂J/∂C and the error estimate."""
+        offset = None if self.wiring is None else self.wiring.offset_pF
+        if offset is not None and offset.shape != plates_pF.shape:
+            raise DesignError(f"the leads' share is {offset.shape} (poses, capacitors), the design's "
+                              f"capacitances {plates_pF.shape}")
+        capacitance = plates_pF if offset is None else plates_pF + offset
         parts, dJ_dC = self.objective.parts_and_gradient(capacitance, outline_terms)
         if not np.isfinite(parts.J):
             raise DesignError(f"J = {parts.J} is not finite (d = {parts.d}, barrier = {parts.barrier}, "
                               f"smoothing = {parts.smoothing})")
-        iterations = tuple(0 if r.state is None else r.state.newton_iterations for r in results)
         error_J, margin_error = self.errors.estimate(dJ_dC, capacitance, outlines)
         return Evaluation(q, parts.J, parts.d, parts.barrier, parts.smoothing, capacitance, sim, iterations,
-                          time.perf_counter() - started, error_J=error_J, margin_error_pF=margin_error, dJ_dC=dJ_dC)
+                          time.perf_counter() - started, error_J=error_J, margin_error_pF=margin_error, dJ_dC=dJ_dC,
+                          offset_pF=offset)
+
+    def reevaluated(self, e: Evaluation) -> Evaluation:
+        """``e`` (an evaluation of this design's meshes) with this design's leads' share in
+        place of the one it was evaluated with: no solve, the same simulation."""
+        plates = e.capacitance_pF if e.offset_pF is None else e.capacitance_pF - e.offset_pF
+        outlines = self.deformer.outlines(e.q)
+        return replace(self._evaluation(e.q, plates, e.sim, e.newton_iterations, outlines,
+                                        self.objective.outline_terms(outlines, check=True), time.perf_counter()),
+                       time_s=e.time_s, released=e.released)
+
+    def rerouted(self, q, progress=None) -> "Design":
+        """This design with its leads routed again at ``q`` and their share of every reading
+        simulated (:func:`mscap.fabrication.during.wiring_offset`); itself, with a warning,
+        when the outlines at ``q`` cannot be routed (J keeps the last route's share)."""
+        from mscap.fabrication.during import wiring_offset
+
+        try:
+            wiring = wiring_offset(self.scene, self.deformer.outlines(q), progress)
+        except FabricationError as exc:
+            log.warning("routing during the optimisation: %s; J keeps %s", exc,
+                        "the plates alone" if self.wiring is None else "the last route's leads")
+            return self
+        return replace(self, wiring=wiring)
 
     def gradient(self, q_or_evaluation) -> np.ndarray:
         """``dJ/dq`` ``(c, 2)`` at an :class:`Evaluation` (or at ``q``, evaluated first)."""
@@ -293,7 +339,7 @@ class Design:
             weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
         # Same meshes, same patterns: the solvers (and their symbolic factorisations) carry over.
         return Design(replace(self.scene, layout=deformer.layout(deformer.zeros())), base, deformer, weights,
-                      self.objective, self.workspace)
+                      self.objective, self.workspace, self.wiring)
 
 
 def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:

@@ -6,6 +6,7 @@ for the warm start."""
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 
@@ -88,7 +89,7 @@ def remesh(design: Design, evaluation: Evaluation) -> tuple[Design, list]:
     spacing = edge * max(1, int(np.floor(half / edge + 1e-9)))
     layout = resampled_layout(design.deformer.outlines(evaluation.q), spacing, edge, scene)
     counts = np.bincount(design.deformer.control_outline, minlength=layout.k)
-    new = build_design(scene, layout=layout, count=counts)
+    new = replace(build_design(scene, layout=layout, count=counts), wiring=design.wiring)  # re-routed by the optimiser
     warm = [None] * len(scene.poses)
     old = evaluation.sim.elastic
     if old is not None and new.base.elastic is not None:

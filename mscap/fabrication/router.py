@@ -146,6 +146,11 @@ class Routing:
     def overlap_mm2(self) -> float:
         return sum(o["area_mm2"] for o in self._overlaps)
 
+    def summary(self) -> str:
+        """One line: array, connector edge, lead length and overlap."""
+        return (f"{self.array.rows} x {self.array.columns} array to the {self.edge} edge, "
+                f"{self.length_mm:.0f} mm of leads, {self.overlap_mm2:.2f} mm2 of overlap")
+
     @property
     def cost(self) -> float:
         """What the router minimises: lead length plus :data:`OVERLAP_WEIGHT_MM` per mm² of

@@ -10,9 +10,11 @@ in. Extruded, a bottom-layer tet belongs to its row net and a top-layer tet to i
 net; the Maxwell matrix over the nets (bottom plate i = row net i, top plate j = column
 net j) gives every reading at once, ``c_ij = −C(R_i, C_j)``.
 
-The plate-only design goes through the same mesher with its plates as the nets of both
-layers, so that the two differ by the wiring alone. The elastic problem is the scene's own
-(its elastic mesh, from the design's plates): the leads' stiffness is left out.
+The plate-only design is meshed on the very mesh of the wired one (both conform to the nets
+and the plates), with its plates as the conductors of both layers, so that the two differ
+by the wiring alone. The elastic problem is the scene's own
+with the nets in place of the plates (:func:`wired_elastic_mesh`): a lead is carbon-black
+silicone in its own layer, as stiff as a plate.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ from mscap.errors import FabricationError, MeshError
 from mscap.mesh.layered import BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER, LayeredMesh, extrude
 from mscap.mesh.triangulate import TriMesh, generate_2d, gmsh_model, quality_grading_mm
 
-__all__ = ["Wiring", "wiring_of", "plates_only", "read_wiring_dir", "net_mesh", "wired_mesh", "readings"]
+__all__ = ["Wiring", "wiring_of", "plates_only", "read_wiring_dir", "net_mesh", "wired_mesh", "wired_elastic_mesh",
+           "readings"]
 
 log = logging.getLogger(__name__)
 
@@ -55,27 +58,48 @@ class Wiring:
     top: tuple
     slots: tuple[tuple[int, int], ...]
     plates: tuple
+    #: Every region the mesh conforms to, conductors or not (default: the conductors):
+    #: a wired design's nets and plates, and the same for its plates alone, so that the two
+    #: are meshed alike and differ by the wiring only (:func:`plates_only`).
+    geometry: tuple = ()
+
+    @property
+    def regions(self) -> tuple:
+        """The regions the mesh conforms to."""
+        return self.geometry or self.bottom + self.top
 
     @property
     def key(self) -> str:
-        """A hash of the conductors and slots: a different wiring is a different design."""
-        h = hashlib.sha256(self.label.encode())
-        for region in self.bottom + self.top:
-            h.update(shapely.to_wkb(region))
+        """A hash of the conductors and slots: a different wiring is a different design
+        (salted with how it is simulated: a cache of readings without the leads' stiffness
+        is stale)."""
+        h = hashlib.sha256(b"leads in the elastic mesh;" + self.label.encode())
+        for region in self.bottom + self.top + (None,) + self.regions:
+            h.update(b"|" if region is None else shapely.to_wkb(region))
         h.update(np.asarray(self.slots, dtype=np.int64).tobytes())
         return h.hexdigest()[:16]
 
 
 def wiring_of(routing) -> Wiring:
     """The wiring of a :class:`mscap.fabrication.router.Routing` (as routed)."""
-    return Wiring("wired", tuple(n.conductor for n in routing.layer("bottom")),
-                  tuple(n.conductor for n in routing.layer("top")), routing.array.slots, routing.plates)
+    return _wired(tuple(n.conductor for n in routing.layer("bottom")), tuple(n.conductor for n in routing.layer("top")),
+                  routing.array.slots, routing.plates)
 
 
-def plates_only(outlines) -> Wiring:
-    """The design without wiring, through the same mesher as a wired one."""
+def _wired(bottom: tuple, top: tuple, slots, plates: tuple) -> Wiring:
+    """Nets ``bottom`` and ``top`` meshed with the plates' outlines in them."""
+    return Wiring("wired", bottom, top, tuple(slots), plates, geometry=bottom + top + plates)
+
+
+def plates_only(outlines, meshed_like: Wiring | None = None) -> Wiring:
+    """The design without wiring: each capacitor's plate its conductor in both layers. With
+    ``meshed_like`` (the design as wired) on the very mesh of that wiring, so that the two
+    readings differ by the leads alone; a lead's share of a reading is then free of the
+    two meshes' discretisation errors, which on the small test scene at 1 mm outline edges
+    are ten times that share (docs/fabrication.md)."""
     plates = tuple(Polygon(np.asarray(o, dtype=float)) for o in outlines)
-    return Wiring("plates", plates, plates, tuple((c, c) for c in range(len(plates))), plates)
+    geometry = meshed_like.regions if meshed_like is not None else ()
+    return Wiring("plates", plates, plates, tuple((c, c) for c in range(len(plates))), plates, geometry=geometry)
 
 
 def read_wiring_dir(directory, outlines=None) -> Wiring:
@@ -122,15 +146,18 @@ def read_wiring_dir(directory, outlines=None) -> Wiring:
                 raise FabricationError(f"{directory}: capacitor {c}'s plate is not in net "
                                        f"{'R' if layer == 'bottom' else 'C'}{n} of {layer}.dxf: "
                                        f"the stencils are of another design")
-    return Wiring("wired", layers["bottom"], layers["top"], tuple(slots[c] for c in range(len(plates))), plates)
+    return _wired(layers["bottom"], layers["top"], tuple(slots[c] for c in range(len(plates))), plates)
 
 
 def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thicknesses_mm,
-             elements_per_layer: int = 1, snap_to=None) -> LayeredMesh:
+             elements_per_layer: int = 1, snap_to=None, slabs: int | None = None, geometry=None) -> LayeredMesh:
     """The layered mesh whose bottom conductive layer holds the regions ``bottom`` (shapely
     polygons, conductor i each) and whose top layer holds ``top``: triangulated conforming
-    to both, ``edge_length_outline_mm`` on every outline graded to ``edge_length_mm``;
-    the regions' vertices within 1e-3 mm of ``snap_to`` (the plates) moved onto it.
+    to the regions ``geometry`` (default: both layers'), ``edge_length_outline_mm`` on every
+    outline graded to ``edge_length_mm``; the regions' vertices within 1e-3 mm of
+    ``snap_to`` (the plates) moved onto it; extruded layer by layer, or in ``slabs`` even
+    slabs (an elastic mesh, :func:`mscap.mesh.layered.extrude`). The same ``geometry``
+    makes the same mesh whatever its conductors.
 
     Raises
     ------
@@ -141,9 +168,11 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
     # Where the two layers' outlines run together (a plate's edge, in both) they must be
     # one curve, not two 1e-5 apart with needles between them: a fillet's closing moves a
     # plate's edge by that much next to a junction. Snapped onto the plates' edges.
+    geometry = list(bottom) + list(top) if geometry is None else list(geometry)
     if snap_to is not None:
         bottom = [shapely.snap(net, snap_to, _SNAP_MM) for net in bottom]
         top = [shapely.snap(net, snap_to, _SNAP_MM) for net in top]
+        geometry = [shapely.snap(region, snap_to, _SNAP_MM) for region in geometry]
     plate_edges = snap_to.boundary if snap_to is not None else None
     plate_vertices = shapely.get_coordinates(plate_edges) if snap_to is not None else None
     spacing = 0.5 * settings.edge_length_outline_mm
@@ -156,8 +185,7 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
 
     bottom = [shapely.ops.unary_union([resampled(p) for p in getattr(n, "geoms", [n])]) for n in bottom]
     top = [shapely.ops.unary_union([resampled(p) for p in getattr(n, "geoms", [n])]) for n in top]
-    regions = [(layer, i, part) for layer, nets in (("bottom", bottom), ("top", top))
-               for i, net in enumerate(nets) for part in getattr(net, "geoms", [net])]
+    parts = [resampled(part) for region in geometry for part in getattr(region, "geoms", [region])]
     with gmsh_model("wired") as gmsh:
         try:
             occ = gmsh.model.occ
@@ -172,7 +200,7 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
                 return occ.addPlaneSurface(loops)
 
             sheet_tag = surface(sheet)
-            tags = [surface(part) for _, _, part in regions]
+            tags = [surface(part) for part in parts]
             occ.fragment([(2, sheet_tag)], [(2, t) for t in tags])
             occ.synchronize()
             inner = []
@@ -217,8 +245,9 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
             if not abs(mesh_area - net.area) <= 1e-3 * net.area + 1e-3:
                 raise MeshError(f"the wired mesh covers {mesh_area:.6g} mm2 of {layer} conductor {i}, "
                                 f"whose outline holds {net.area:.6g} mm2 ({int(area[i])} triangles)")
-    mesh2d = TriMesh(points, triangles, np.where(label["bottom"] >= 0, label["bottom"], label["top"]))
-    mesh = extrude(mesh2d, thicknesses_mm, elements_per_layer)
+    mesh2d = TriMesh(points, triangles, np.where(label["bottom"] >= 0, label["bottom"], label["top"]),
+                     conductor_of_layer=np.column_stack([label["bottom"], label["top"]]))
+    mesh = extrude(mesh2d, thicknesses_mm, elements_per_layer, slabs=slabs)
     layer = mesh.layer_of_tet
     conductor = np.full(len(mesh.tets), -1, dtype=np.int32)
     on_bottom, on_top = layer == BOTTOM_PLATE_LAYER, layer == TOP_PLATE_LAYER
@@ -264,18 +293,39 @@ def wired_mesh(scene, wiring: Wiring) -> LayeredMesh:
     conductor i, top conductor j."""
     return net_mesh(scene.sheet_outline_mm, list(wiring.bottom), list(wiring.top), scene.mesh,
                     [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
-                    snap_to=shapely.ops.unary_union(wiring.plates))
+                    snap_to=shapely.ops.unary_union(wiring.plates), geometry=wiring.regions)
 
 
-def readings(scene, wiring: Wiring, mesh: LayeredMesh | None = None, progress=None) -> tuple[np.ndarray, np.ndarray]:
+def wired_elastic_mesh(scene, wiring: Wiring) -> LayeredMesh | None:
+    """The elastic mesh of ``wiring`` on ``scene``'s ``[elastic]`` sizes and slabs: the
+    scene's own elastic mesh with the nets in place of the plates, so that every lead is
+    carbon-black silicone in its own conductive layer (the leads' stiffness); ``None`` when
+    the scene's elastic mesh is the electrostatic one (``mesh = "shared"``: the wired mesh
+    holds the nets already) or no pose deforms the sheet."""
+    from mscap.mesh.layered import elastic_sizes
+
+    if scene.elastic.mesh == "shared" or all(p.kind == "free" for p in scene.poses):
+        return None
+    return net_mesh(scene.sheet_outline_mm, list(wiring.bottom), list(wiring.top), elastic_sizes(scene),
+                    [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
+                    snap_to=shapely.ops.unary_union(wiring.plates), geometry=wiring.regions,
+                    slabs=scene.elastic.elements_through_thickness or None)
+
+
+def readings(scene, wiring: Wiring, mesh: LayeredMesh | None = None, progress=None,
+             stiffness: Wiring | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Every pose of ``scene`` (whose layout is the design's plates) simulated on the
     wired mesh: ``(n_poses, k)`` readings, capacitor c's the mutual capacitance of its
     row and column conductors, ``−C(bottom i, top j)`` of the Maxwell matrix (pF); and each
-    pose's wall time (s)."""
+    pose's wall time (s). The elastic problem holds the nets (:func:`wired_elastic_mesh`),
+    or those of ``stiffness`` (e.g. the plates alone meshed like ``wiring``: the leads as
+    soft as the silicone around them)."""
     from mscap.fem.simulate import simulate
 
     mesh = mesh or wired_mesh(scene, wiring)
-    sim = simulate(scene, mesh=mesh, keep_fields=False, progress=progress, every_plate=False, maxwell=True)
+    elastic = wired_elastic_mesh(scene, stiffness or wiring)
+    sim = simulate(scene, mesh=mesh, keep_fields=False, progress=progress, every_plate=False, maxwell=True,
+                   elastic_mesh=elastic)
     k = mesh.n_capacitors
     out = np.array([[-pose.capacitances.maxwell_pF[i, k + j] for i, j in wiring.slots] for pose in sim.poses])
     wall = np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])

@@ -89,7 +89,7 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
              mesh: LayeredMesh | None = None, keep_factorisation: bool = False, keep_fields: bool = True,
              out_of_core: bool = False, progress: Callable[[str], None] | None = None,
              starts: Callable[[ElasticProblem], Sequence[np.ndarray | None]] | None = None,
-             every_plate: bool = True, maxwell: bool = False) -> Simulation:
+             every_plate: bool = True, maxwell: bool = False, elastic_mesh: LayeredMesh | None = None) -> Simulation:
     """Simulate every pose of ``scene``.
 
     Parameters
@@ -121,6 +121,9 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
         nets are the plates, :mod:`mscap.fabrication.wired`).
     maxwell
         Also each pose's Maxwell matrix (``capacitances.maxwell_pF``; twice the solves).
+    elastic_mesh
+        An elastic mesh to use instead of the scene's (a wired sensor's nets,
+        :func:`mscap.fabrication.wired.wired_elastic_mesh`).
     """
     start = time.perf_counter()
     meshed_here = mesh is None
@@ -129,7 +132,7 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     electrostatic.check_plates(mesh, every_plate)  # a bad layout fails now, not after the elastic solves
     # The transfer to the electrostatic vertices is built after the elastic phase (35 MB on
     # biaxial's finer-mesh check); the elastic solves do not need it.
-    problem, _ = elastic_setup(scene, mesh, elastic_order, transfer=False)
+    problem, _ = elastic_setup(scene, mesh, elastic_order, transfer=False, elastic_mesh=elastic_mesh)
     # Out of core (memory over speed), a mesh made here is set aside through the elastic phase
     # when the elastic mesh is another one, and extruded again from its triangulation after it:
     # 1.7 M tets, 79 MB, on biaxial's finer-mesh check, whose elastic phase is its peak.
@@ -295,16 +298,17 @@ def element_of(scene: Scene, order: int | None = None) -> tuple[int, str]:
     return order, scene.mesh.element if order == 1 else "tet"
 
 
-def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None, transfer: bool = True):
+def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None, transfer: bool = True,
+                  elastic_mesh: LayeredMesh | None = None):
     """The elastic problem the scene's poses need (``None`` if every pose is free) on the
-    scene's elastic mesh, and the transfer to ``mesh``'s vertices (``None`` when shared or
-    not asked for: :func:`elastic_transfer` builds it later)."""
+    scene's elastic mesh (or ``elastic_mesh``), and the transfer to ``mesh``'s vertices
+    (``None`` when shared or not asked for: :func:`elastic_transfer` builds it later)."""
     if all(p.kind == "free" for p in scene.poses):
         return None, None
     order = order or scene.elastic.order
     _warn_p1_clamped_stretch(scene, order)
     _warn_p1_bending(scene, order)
-    problem = build_problem(mesh_elastic(scene, mesh), scene.layers, order)
+    problem = build_problem(elastic_mesh or mesh_elastic(scene, mesh), scene.layers, order)
     return problem, elastic_transfer(problem, mesh) if transfer else None
 
 

@@ -123,10 +123,11 @@ def layer_fractions(mesh: LayeredMesh, thicknesses_mm, tets: slice = slice(None)
 
 def tet_values(mesh: LayeredMesh, layers, value) -> np.ndarray:
     """``value(material)`` of every tet, ``(M,)`` or ``(M, ...)``: the layer's material
-    inside a plate, its ``fill`` (conductive layers) or material elsewhere. A tet that
-    spans several layers (an elastic mesh coarser than the stack) gets the volume-weighted
-    mean, which for a constant-strain (P1) tet and an energy linear in the material
-    constants is its exact energy.
+    inside a plate (a wired sensor: inside that conductive layer's own conductors,
+    ``mesh2d.conductor_of_layer``), its ``fill`` (conductive layers) or material elsewhere.
+    A tet that spans several layers (an elastic mesh coarser than the stack) gets the
+    volume-weighted mean, which for a constant-strain (P1) tet and an energy linear in the
+    material constants is its exact energy.
 
     ``layers`` are :class:`mscap.scene.settings.Layer` objects, bottom to top."""
     from mscap.errors import MeshError
@@ -142,9 +143,17 @@ def tet_values(mesh: LayeredMesh, layers, value) -> np.ndarray:
     for start in range(0, len(mesh.tets), TET_BLOCK):
         block = slice(start, start + TET_BLOCK)
         fractions = layer_fractions(mesh, thicknesses, block)
-        inside = mesh.mesh2d.capacitor_of_triangle[mesh.triangle_of_tet[block]] >= 0
-        out[block] = np.where(inside.reshape((-1,) + (1,) * (plate.ndim - 1)),
-                              np.tensordot(fractions, plate, axes=1), np.tensordot(fractions, fill, axes=1))
+        triangles = mesh.triangle_of_tet[block]
+        by_layer = mesh.mesh2d.conductor_of_layer
+        if by_layer is None:
+            inside = mesh.mesh2d.capacitor_of_triangle[triangles] >= 0
+            out[block] = np.where(inside.reshape((-1,) + (1,) * (plate.ndim - 1)),
+                                  np.tensordot(fractions, plate, axes=1), np.tensordot(fractions, fill, axes=1))
+        else:  # each conductive layer inside its own conductors: fill there, the plate's material in it
+            out[block] = np.tensordot(fractions, fill, axes=1)
+            for column, layer in enumerate((BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER)):
+                inside = by_layer[triangles, column] >= 0
+                out[block][inside] += np.multiply.outer(fractions[inside, layer], plate[layer] - fill[layer])
     return out
 
 

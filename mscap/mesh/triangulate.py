@@ -83,16 +83,22 @@ class TriMesh:
     quality
         How it measured against :mod:`mscap.mesh.shape`'s quality when it was made
         (``None`` for a mesh mscap did not triangulate).
+    conductor_of_layer
+        ``(m, 2)`` the conductor a triangle lies in in the bottom and in the top conductive
+        layer (-1: none), where the two layers differ (a wired sensor's nets,
+        :mod:`mscap.fabrication.wired`); ``None``: ``capacitor_of_triangle`` in both.
     """
 
     points: np.ndarray
     triangles: np.ndarray
     capacitor_of_triangle: np.ndarray
     quality: MeshQuality | None = dataclass_field(default=None, compare=False)
+    conductor_of_layer: np.ndarray | None = dataclass_field(default=None, compare=False)
 
     def __post_init__(self):
-        for array in (self.points, self.triangles, self.capacitor_of_triangle):
-            array.setflags(write=False)
+        for array in (self.points, self.triangles, self.capacitor_of_triangle, self.conductor_of_layer):
+            if array is not None:
+                array.setflags(write=False)
 
     def areas(self) -> np.ndarray:
         """Signed triangle areas (positive: counter-clockwise)."""

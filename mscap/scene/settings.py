@@ -375,7 +375,9 @@ class FabricationSettings:
     masked by a square ``mask_margin_mm`` larger on every side. ``rows``/``columns``: the
     array (0: :func:`mscap.readout.array.grid_array`'s); ``assignments``: slot
     assignments the router tries; ``grid_mm``: the routing grid (0: a fifth of the pad
-    pitch, at most half the trace width)."""
+    pitch, at most half the trace width). ``route_during_optimisation``: the optimiser's
+    capacitances are the routed sensor's, re-routed at every remesh
+    (:mod:`mscap.fabrication.during`)."""
 
     trace_width_mm: float = 1.0
     clearance_mm: float = 1.0
@@ -390,6 +392,7 @@ class FabricationSettings:
     columns: int = 0
     assignments: int = 24
     grid_mm: float = 0.0
+    route_during_optimisation: bool = False
 
 
 @dataclass(frozen=True)

@@ -8,14 +8,15 @@ This module owns the output directory of one ``mscap optimize`` start
 - ``outlines.json``: ``scene``, ``min_gap_mm``, ``outlines_mm`` (the final layout, mm);
 - ``capacitance.csv``: ``pose, stage, C0_pF, ...``, the initial and final capacitances;
 - ``history.csv``: one row per optimiser event (``mscap.design.optimizer.HISTORY_FIELDS``);
-- ``summary.json``: ``k``, ``seed``, ``init``, iterations, metrics, per-pose capacitances.
+- ``summary.json``: ``k``, ``seed``, ``init``, iterations, metrics, per-pose capacitances (and,
+  routed during the optimisation, each re-route).
 """
 
 from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -157,6 +158,7 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
                "initial_min_l1_pF": result.initial.min_l1_pF, "final_min_l1_pF": result.evaluation.min_l1_pF,
                "initial_J": result.initial.J, "final_J": result.evaluation.J,
                "remeshes": sum(r.event == "remesh" for r in result.history),
+               **({"reroutes": [asdict(r) for r in result.reroutes]} if result.reroutes else {}),
                **({} if bound is None else {"initial_bound_mm": bound.value(result.initial.capacitance_pF),
                                             "final_bound_mm": bound.value(result.evaluation.capacitance_pF)}),
                "poses": poses,
