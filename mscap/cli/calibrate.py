@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from mscap.cli.common import add_memory_option
+from mscap.cli.common import add_memory_option, add_noise_options
 
 __all__ = ["add_parser", "run"]
 
@@ -30,14 +30,13 @@ def add_parser(sub) -> None:
     p.add_argument("--wiring", metavar="FABRICATE_DIR",
                    help="also calibrate the design as wired: the nets of an `mscap fabricate` output directory "
                         "(read from its stencils) and, for comparison, its plates alone on the same mesh")
-    p.add_argument("-o", "--output", help="output directory (default: <results>_calibration/, or "
-                                          "DIR/calibration/ for an optimize directory)")
-    p.add_argument("--cache", help="simulation cache (default: <results>_calibration.h5, or "
-                                   "DIR/calibration.h5)")
-    p.add_argument("--runs", type=int, help="noisy runs (default: the scene's, 100)")
-    p.add_argument("--seed", type=int, help="noise seed (default: the scene's)")
-    p.add_argument("--relative-shift", type=float, help="per-run multiplicative shift, ± fraction (0.15)")
-    p.add_argument("--additive-pF", type=float, help="per-pose additive noise, ± pF (2)")
+    p.add_argument("-o", "--output", metavar="DIR", help="output directory (default: <results>_calibration/, or "
+                                                         "OPTIMIZE_DIR/calibration/ for an optimize directory)")
+    p.add_argument("--cache", metavar="FILE.h5", help="simulation cache (default: <results>_calibration.h5, or "
+                                                      "OPTIMIZE_DIR/calibration.h5)")
+    p.add_argument("--runs", type=int, metavar="N", help="noisy runs (default: the scene's, 100)")
+    p.add_argument("--seed", type=int, metavar="N", help="noise seed (default: the scene's)")
+    add_noise_options(p)
     p.add_argument("--reference", metavar="POSE",
                    help="divide every read-out by this pose's, read once per run ('none': raw "
                         "read-outs; default: the scene's calibration.reference)")

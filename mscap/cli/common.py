@@ -10,7 +10,8 @@ import os
 import sys
 from typing import Callable
 
-__all__ = ["DefaultsHelpFormatter", "load_scene_for", "add_memory_option", "progress_printer"]
+__all__ = ["DefaultsHelpFormatter", "load_scene_for", "add_memory_option", "add_noise_options", "add_verbose_option",
+           "progress_printer"]
 
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
@@ -47,6 +48,31 @@ def add_memory_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-memory-gb", type=float, action=_MemoryLimit, metavar="GB",
                         help="refuse, before meshing, a mesh whose simulation would need more than GB "
                              "(default: MSCAP_MAX_MEMORY_GB, else the memory this machine has)")
+
+
+def add_noise_options(parser: argparse.ArgumentParser, relative_shift: float | None = None,
+                      additive_pF: float | None = None) -> None:
+    """``--relative-shift FRACTION`` and ``--additive-pF PF``, the read-out noise, named as
+    the scene's ``[calibration.noise]`` keys in every command (``None``: the scene's). The
+    names ``readout`` used before, ``--noise-relative`` and ``--noise-additive-pF``, still work."""
+    scene = " (default: the scene's [calibration.noise], {})"
+    parser.add_argument("--relative-shift", type=float, default=relative_shift, metavar="FRACTION",
+                        help="per-run multiplicative shift of every capacitance, uniform in 1 +- FRACTION"
+                             + (scene.format(0.15) if relative_shift is None else ""))
+    parser.add_argument("--additive-pF", dest="additive_pF", type=float, default=additive_pF, metavar="PF",
+                        help="per-reading additive error, uniform in +-PF" + (scene.format(2) if additive_pF is None
+                                                                             else ""))
+    parser.add_argument("--noise-relative", dest="relative_shift", type=float, default=argparse.SUPPRESS,
+                        help=argparse.SUPPRESS)
+    parser.add_argument("--noise-additive-pF", dest="additive_pF", type=float, default=argparse.SUPPRESS,
+                        help=argparse.SUPPRESS)
+
+
+def add_verbose_option(parser: argparse.ArgumentParser) -> None:
+    """``-v``/``--verbose`` on a subcommand as well as before it (``mscap run SCENE -v``): its
+    count replaces the one given before the subcommand; without it that one stands."""
+    parser.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                        help="more log output (-vv: debug)")
 
 
 def load_scene_for(args):

@@ -13,7 +13,7 @@ def add_parser(sub) -> None:
                                    "in several inputs is taken from the first input where it succeeded "
                                    "(else the first where it appears).")
     p.add_argument("inputs", nargs="+", help="results files (.h5)")
-    p.add_argument("-o", "--output", required=True, help="merged results file")
+    p.add_argument("-o", "--output", metavar="RESULTS.h5", required=True, help="merged results file")
     p.add_argument("--force", action="store_true", help="overwrite the output file")
     p.set_defaults(run=run)
 

@@ -17,7 +17,7 @@ def add_parser(sub) -> None:
                                    "k with the plateau tolerance band of the chosen k (paper Fig. 10). "
                                    "The selection is recomputed from the stored runs (see docs/hdf5.md).")
     p.add_argument("results", help="results file (.h5)")
-    p.add_argument("-o", "--output", metavar="PNG", required=True, help="figure file (.png)")
+    p.add_argument("-o", "--output", metavar="FIGURE.png", required=True, help="figure file (.png)")
     p.add_argument("--dpi", type=int, default=120, help="resolution (dots per inch)")
     p.set_defaults(run=run)
 

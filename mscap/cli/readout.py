@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+from mscap.cli.common import add_noise_options
 from mscap.readout.array import C_OFF_PF, C_ON_PF
 
 __all__ = ["add_parser", "run"]
@@ -38,11 +39,8 @@ def add_parser(sub) -> None:
     p.add_argument("--c-off", type=float, default=C_OFF_PF, metavar="PF", help="switch OFF capacitance (pF)")
     p.add_argument("--runs", type=int, default=100, help="simulated read-outs per pose")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (and of random candidate patterns)")
-    p.add_argument("--noise-relative", type=float, default=0.15, metavar="FRACTION",
-                   help="per-run capacitance shift, uniform in +-FRACTION")
-    p.add_argument("--noise-additive-pF", dest="noise_additive_pF", type=float, default=2.0, metavar="PF",
-                   help="per-reading error, uniform in +-PF")
-    p.add_argument("-o", "--output", metavar="OUTDIR", help="write OUTDIR/readout.csv and OUTDIR/readout.json")
+    add_noise_options(p, relative_shift=0.15, additive_pF=2.0)
+    p.add_argument("-o", "--output", metavar="DIR", help="write DIR/readout.csv and DIR/readout.json")
     p.add_argument("--json", action="store_true", help="print the JSON document instead of the table")
     p.set_defaults(run=run)
 
@@ -60,7 +58,7 @@ def run(args) -> int:
     check_switches(args.c_on, args.c_off)
     if args.wiring and (args.rows or args.columns):
         raise ReadoutError("--wiring gives the array; leave out --rows and --columns")
-    noise = NoiseModel(args.noise_relative, args.noise_additive_pF, args.runs, args.seed)
+    noise = NoiseModel(args.relative_shift, args.additive_pF, args.runs, args.seed)
     if args.output:
         output_directory(args.output, "readout -o")
     path = split_design_spec(args.design)[0]

@@ -12,9 +12,12 @@ def add_parser(sub) -> None:
                                    "rank 0 schedules and writes, the other ranks optimise. Rerunning "
                                    "on an existing file completes only the missing runs.")
     p.add_argument("scene", help="scene file (jobs/*.toml)")
-    p.add_argument("-o", "--output", default="results.h5", help="HDF5 results file (default: %(default)s)")
-    p.add_argument("--k-min", type=int, help="only starts with k >= this")
-    p.add_argument("--k-max", type=int, help="only starts with k <= this")
+    p.add_argument("-o", "--output", metavar="RESULTS.h5", default="results.h5",
+                   help="HDF5 results file (default: %(default)s)")
+    p.add_argument("--k-min", type=int, metavar="K",
+                   help="only starts with k >= K (default: the scene's [multistart] k_min)")
+    p.add_argument("--k-max", type=int, metavar="K",
+                   help="only starts with k <= K (default: the scene's [multistart] k_max)")
     p.add_argument("--seeds", metavar="A:B", help="only start indices A..B-1 within each k (the start from the "
                                                   "scene's layout, [multistart] scene_start, is index 999)")
     p.add_argument("--starts-per-k", type=int, metavar="N",

@@ -9,7 +9,7 @@ import re
 
 import pytest
 
-from mscap.cli import build_parser
+from mscap.cli import build_parser, parse
 
 #: ``(default: VALUE)`` as the formatter writes it, or ``(default VALUE)`` as a text may.
 SHOWN_DEFAULT = re.compile(r"\(default:? ([^)]*)\)")
@@ -60,3 +60,58 @@ def test_defaults_are_shown_once_and_never_as_none_or_false():
             assert option_help.count("(default") <= 1, f"mscap {name} {action.option_strings}: {option_help!r}"
         text = parser.format_help()
         assert "(default: None)" not in text and "(default: False)" not in text, f"mscap {name}"
+
+
+def test_one_name_per_idea_across_the_commands():
+    """``-o`` is DIR where a command writes a directory and names the file's kind where it
+    writes one; the read-out noise is ``--relative-shift``/``--additive-pF`` (the scene's
+    ``[calibration.noise]`` keys) wherever it is set."""
+    for name, parser in subparsers().items():
+        for action in parser._actions:
+            if "-o" in action.option_strings:
+                assert action.metavar == "DIR" or action.metavar.endswith((".h5", ".png")), (name, action.metavar)
+        visible = {o for a in parser._actions if a.help != argparse.SUPPRESS for o in a.option_strings}
+        assert not visible & {"--noise-relative", "--noise-additive-pF"}, name
+    for name in ("calibrate", "readout"):
+        options = {o: a.dest for a in subparsers()[name]._actions for o in a.option_strings}
+        assert options["--relative-shift"] == "relative_shift" and options["--additive-pF"] == "additive_pF", name
+
+
+@pytest.mark.parametrize("argv, verbose", [
+    (["plot", "r.h5", "-o", "f.png", "-v"], 1),
+    (["plot", "r.h5", "-vv", "-o", "f.png"], 2),
+    (["-v", "plot", "r.h5", "-o", "f.png"], 1),
+    (["plot", "r.h5", "-o", "f.png"], 0),
+])
+def test_verbose_after_the_subcommand_is_not_a_petsc_option(argv, verbose):
+    args, petsc_args = parse(argv)
+    assert args.verbose == verbose and petsc_args == []
+
+
+@pytest.mark.parametrize("argv, output, petsc_args", [
+    # argparse alone read these as "-o ptions_left" (an output directory) and "-v ec_type"
+    (["optimize", "s.toml", "-o", "d", "-options_left"], "d", ["-options_left"]),
+    (["plot", "r.h5", "-o", "f.png", "-vec_type", "seq", "-vv"], "f.png", ["-vec_type", "seq"]),
+    (["simulate", "s.toml", "-help", "-ksp_rtol", "1e-8", "-mat_shift", "-1", "--json"], None,
+     ["-help", "-ksp_rtol", "1e-8", "-mat_shift", "-1"]),
+    (["optimize", "s.toml", "-q", "-log_view", "-o", "d"], "d", ["-log_view"]),
+])
+def test_petsc_options_after_the_arguments_go_to_petsc_whole(argv, output, petsc_args):
+    args, petsc = parse(argv)
+    assert getattr(args, "output", None) == output and petsc == petsc_args
+
+
+def test_an_unknown_mscap_option_is_an_error_not_a_petsc_option(capsys):
+    for argv in (["simulate", "s.toml", "--jsn"], ["simulate", "s.toml", "-x"]):
+        with pytest.raises(SystemExit):
+            parse(argv)
+        assert "unrecognized arguments" in capsys.readouterr().err
+
+
+def test_the_old_readout_noise_names_still_set_the_same_values():
+    parse = build_parser().parse_known_args
+    old, _ = parse(["readout", "s.toml", "--design", "r.h5", "--noise-relative", "0.1", "--noise-additive-pF", "3"])
+    new, _ = parse(["readout", "s.toml", "--design", "r.h5", "--relative-shift", "0.1", "--additive-pF", "3"])
+    default, _ = parse(["readout", "s.toml", "--design", "r.h5"])
+    assert (old.relative_shift, old.additive_pF) == (new.relative_shift, new.additive_pF) == (0.1, 3.0)
+    assert (default.relative_shift, default.additive_pF) == (0.15, 2.0)
