@@ -28,26 +28,16 @@ The names below load their stage on first use, so ``import mscap`` (and the HDF5
 
 from __future__ import annotations
 
-import importlib
-
-from mscap.errors import GeometryError, MeshError, MscapError, SceneError
+from mscap._lazy import lazy_names
+from mscap.errors import GeometryError, MeshError, MscapError, SceneError  # noqa: F401 (in __all__)
 
 __version__ = "0.1.0"
 
-#: Public name -> module that defines it (imported on first access).
-_API = {
+__all__, __getattr__ = lazy_names(__name__, {
     "load_scene": "mscap.scene.loader",
     "Scene": "mscap.scene.settings",
     "simulate": "mscap.fem.simulate",
     "build_design": "mscap.design.pipeline",
     "optimize": "mscap.design.optimizer",
     "run_multistart": "mscap.service.multistart",
-}
-
-__all__ = ["__version__", "MscapError", "SceneError", "GeometryError", "MeshError", *_API]
-
-
-def __getattr__(name: str):
-    if name in _API:
-        return getattr(importlib.import_module(_API[name]), name)
-    raise AttributeError(f"module 'mscap' has no attribute {name!r}")
+}, eager=("__version__", "MscapError", "SceneError", "GeometryError", "MeshError"))

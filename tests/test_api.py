@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import inspect
 import subprocess
 import sys
 
@@ -50,3 +51,32 @@ def test_the_docstring_pipeline_runs(tmp_path):
 def test_unknown_names_are_attribute_errors():
     with pytest.raises(AttributeError, match="no attribute 'simulation'"):
         mscap.simulation  # noqa: B018
+
+
+PACKAGES = ("scene", "geometry", "mesh", "fem", "bodies", "design", "service", "calibration", "readout",
+            "fabrication", "viz")
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_each_subpackage_offers_its_names_and_importing_it_costs_nothing(package):
+    import importlib
+    import pkgutil
+
+    loaded = _loaded_after(f"import mscap.{package}")
+    assert not [m for m in loaded if m.startswith(HEAVY) and m != f"mscap.{package}"]
+    own = [m for m in loaded if m.startswith(f"mscap.{package}.")]
+    assert package == "scene" or not own, own  # the scene loads its loader, as ever: it is light
+    pkg = importlib.import_module(f"mscap.{package}")
+    assert pkg.__all__ and pkg.__doc__.count("\n") >= 2
+    # After every module of the package is loaded, a public name is still the object, not
+    # a submodule of the same name (``mscap.fem.simulate`` is one).
+    for info in pkgutil.iter_modules(pkg.__path__):
+        importlib.import_module(f"mscap.{package}.{info.name}")
+    for name in pkg.__all__:
+        value = getattr(pkg, name)
+        assert not inspect.ismodule(value), f"mscap.{package}.{name} is a module"
+        if callable(value):
+            assert name in importlib.import_module(value.__module__).__all__, \
+                f"mscap.{package}.{name}: not public in {value.__module__}"
+    with pytest.raises(AttributeError, match=f"'mscap.{package}' has no attribute 'nothing_here'"):
+        pkg.nothing_here  # noqa: B018

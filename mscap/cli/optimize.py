@@ -33,11 +33,9 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from mscap.design.optimizer import optimize
-    from mscap.design.pipeline import build_design
     from mscap.design.readback import design_scene
-    from mscap.design.starts import start_layout
+    from mscap.design.starts import start_design
     from mscap.outputs import output_directory, replace_file
-    from mscap.scene.sizing import with_layout
     from mscap.service.designs import OPTIMIZE_FILES, write_optimize_output
 
     from mscap.errors import DesignError
@@ -51,9 +49,8 @@ def run(args) -> int:
     scene = design_scene(load_scene_for(args))  # the design poses: listed, or from the family
     out = output_directory(args.output, "optimize -o")  # before the work
     say = progress_printer(args.quiet) or (lambda message: None)
-    layout = start_layout(scene, args.k, args.seed, args.init)
+    layout, design = start_design(scene, args.k, args.seed, args.init)
     say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(scene.poses)} design poses")
-    design = build_design(with_layout(scene, layout))
     result = optimize(design, progress=say, max_iterations=args.max_iterations, cascade_levels=args.cascade)
 
     summary = write_optimize_output(out, scene, layout, result, args.seed, args.init)

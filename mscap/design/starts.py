@@ -49,7 +49,7 @@ if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
 __all__ = ["SensitivityMap", "sensitivity_map", "sensitivity_layout", "start_layout", "START_INITS",
-           "capacitance_density"]
+           "capacitance_density", "start_design"]
 
 #: Every ``init`` :func:`start_layout` accepts: the geometric ones and ``"sensitivity"``.
 START_INITS = LAYOUT_INITS + ("sensitivity",)
@@ -216,3 +216,16 @@ def start_layout(scene: Scene, k: int | None, seed: int, init: str) -> Layout:
     if init not in START_INITS:
         raise GeometryError(f"unknown init {init!r}; expected one of {', '.join(START_INITS)}")
     return initial_layout(scene, k, seed, init)
+
+
+def start_design(scene: Scene, k: int | None, seed: int, init: str):
+    """One start, as ``mscap optimize`` and every start of the multi-start begin: its
+    initial layout (:func:`start_layout`) and the :class:`~mscap.design.pipeline.Design` of
+    ``scene`` with that layout, its meshes sized for its plates
+    (:func:`mscap.scene.sizing.with_layout`). Returns ``(layout, design)``; ``design.scene``
+    holds the design poses."""
+    from mscap.design.pipeline import build_design
+    from mscap.scene.sizing import with_layout
+
+    layout = start_layout(scene, k, seed, init)
+    return layout, build_design(with_layout(scene, layout))

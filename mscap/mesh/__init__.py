@@ -1,2 +1,22 @@
 """Meshes: the size estimate before meshing (budget), the 2D triangulation (gmsh), the
-layered tets, quality, transfer between meshes, io."""
+layered tets, quality, transfer between meshes, io.
+
+Its public names load their module on first use::
+
+    from mscap.mesh import mesh_scene, mesh_report
+    mesh = mesh_scene(scene)                     # gmsh, extruded into layered tets
+    mesh_report(mesh)
+"""
+
+from mscap._lazy import lazy_names
+
+__all__, __getattr__ = lazy_names(__name__, {
+    "mesh_scene": "layered",
+    "mesh_elastic": "layered",
+    "LayeredMesh": "layered",
+    "extrude": "layered",
+    "TriMesh": "triangulate",
+    "interpolation_matrix": "transfer",
+    "p1_matrix": "transfer",
+    "mesh_report": "quality",
+})

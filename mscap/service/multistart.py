@@ -102,17 +102,14 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned. When
     the master is stopping, ``ask`` raises :class:`~mscap.service.farm.Abandoned`, which
     passes through: the start is not recorded and runs again on resume."""
-    from mscap.design.pipeline import build_design
-    from mscap.scene.sizing import with_layout
-    from mscap.design.starts import start_layout
     from mscap.design.optimizer import optimize
+    from mscap.design.starts import start_design
 
     release_freed_memory()  # what the previous start on this worker freed
     start, meter = time.perf_counter(), Meter()
     layout = None
     try:
-        layout = start_layout(scene, config.k, config.seed, config.init)
-        design = build_design(with_layout(scene, layout))  # sized for its plates
+        layout, design = start_design(scene, config.k, config.seed, config.init)
         scene = design.scene  # its design poses (mscap.design.readback.design_scene)
         rule, kind, verdicts = PruneRule.from_settings(scene.multistart), score_kind(scene), []
 
