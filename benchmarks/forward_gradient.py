@@ -19,7 +19,7 @@ per scene):
    peak memory is what a multi-start worker needs (the finer-mesh check at the end of a
    run excepted: benchmarks/scaling.py has memory against mesh size).
 
-Each stage's wall time is split with :mod:`mscap.fem.profile` into meshing, assembly,
+Each stage's wall time is split with :mod:`mscap.profile` into meshing, assembly,
 factorisation, solve and other (Python and numpy outside the kernels). The issue's
 targets: gradient ≤ 1.5× the evaluation; a warm iteration ≥ 5× cheaper than a cold
 forward; ≤ 2 GB per process. The time inside the elastic Newton solves (PETSc's
@@ -65,7 +65,7 @@ def _newton_s() -> float:
     from mscap.fem.petsc import petsc
 
     PETSc = petsc()
-    stage = PETSc.Log.Stage("Newton")  # the stage mscap.fem.profile.phase registers
+    stage = PETSc.Log.Stage("Newton")  # the stage mscap.profile.phase registers
     event = PETSc.Log.Event("Newton", PETSc.Log.Class("mscap"))
     return float(event.getPerfInfo(stage.id)["time"])
 
@@ -73,7 +73,7 @@ def _newton_s() -> float:
 def _timed(stage: str, out: dict, function, *args, **kwargs):
     """Run ``function``, store its split under ``stage`` in ``out``, return its value;
     ``newton`` is the part of it spent in the elastic Newton solves."""
-    from mscap.fem import profile
+    from mscap import profile
 
     profile.reset()
     newton = _newton_s()

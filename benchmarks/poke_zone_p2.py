@@ -96,7 +96,7 @@ import mscap.mesh.layered as layered  # noqa: E402
 from benchmarks._common import table_head, tolerance_text, write_csv  # noqa: E402
 from benchmarks.element_bias import scene_text  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
-from mscap.fem.profile import timed  # noqa: E402
+from mscap.profile import timed  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.scene.poses import PokePose  # noqa: E402
 

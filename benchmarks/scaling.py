@@ -10,7 +10,7 @@ process of its own, so the peak resident memory (``ru_maxrss``) is that level's 
 
 Per level: electrostatic tets and vertices, elastic tets and nodes, wall time with the
 split of :func:`~mscap.fem.simulate.simulate` (mesh, setup, elastic, electrostatic) and of
-:mod:`mscap.fem.profile` (meshing, assembly, factorisation, solve, other), the resident
+:mod:`mscap.profile` (meshing, assembly, factorisation, solve, other), the resident
 memory after start-up (Python, numpy, PETSc) and the peak. The fits
 log t = a + p log(tets) and log(peak MB) = a + p log(tets) run over the levels, tets
 being the electrostatic mesh's (the elastic mesh is 60–100× smaller); the elastic time
@@ -82,7 +82,7 @@ def peak_rss_MB() -> float:
 
 def measure(scene_path: str, factor: float) -> dict:
     """One level, in this process: the cold forward simulation of the refined scene."""
-    from mscap.fem import profile
+    from mscap import profile
     from mscap.fem.petsc import petsc, set_scene_options
     from mscap.scene import load_scene
     from mscap.fem.simulate import simulate

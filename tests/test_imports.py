@@ -93,7 +93,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 def test_the_graph_is_read():
     graph = import_graph()
-    assert "mscap.bodies.registry" in graph and "mscap.mesh.transfer" in graph
+    assert "mscap.bodies.registry" in graph and "mscap.fem.transfer" in graph
     assert "mscap.bodies.basic" in graph["mscap.bodies.registry"]
     assert "mscap.errors" in graph["mscap"]
 
@@ -106,3 +106,67 @@ def test_find_cycle_finds_one():
 def test_no_import_cycle_in_mscap():
     cycle = find_cycle(import_graph())
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+#: The package order, bottom floor first (docs/architecture.md draws it): a package may
+#: import the floors below it and its own, never one above; ``""`` is the top-level
+#: modules (``mscap``, ``errors``, ``profile``, ``testing``, ...).
+FLOORS = (("", "errors", "_lazy", "profile", "testing", "outputs"), ("geometry",), ("bodies",), ("scene",),
+          ("mesh",), ("fem",), ("readout",), ("fabrication",), ("design",), ("calibration",), ("service",),
+          ("viz",), ("cli",))
+
+#: The imports that still point up, each named: the calibration runs on the service's MPI
+#: farm and writes its cache through the service's locked HDF5 files, and two stages draw
+#: their own figure. The test fails when one is added, and when one is gone (remove it here).
+UPWARD = {
+    ("mscap.calibration.report", "mscap.service.designs"),
+    ("mscap.calibration.service", "mscap.service"),
+    ("mscap.calibration.service", "mscap.service.outfile"),
+    ("mscap.calibration.service", "mscap.service.store"),
+    ("mscap.calibration.report", "mscap.viz.calibration"),
+    ("mscap.fabrication.report", "mscap.viz.fabrication"),
+}
+
+
+def every_import(tree: ast.Module) -> list[ast.Import | ast.ImportFrom]:
+    """Every import of a module, inside functions too; not those under ``if TYPE_CHECKING:``."""
+    typing_only = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
+                   and "TYPE_CHECKING" in ast.unparse(node.test) for n in ast.walk(node)}
+    return [node for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom))
+            and id(node) not in typing_only]
+
+
+def upward_imports() -> set[tuple[str, str]]:
+    """``(module, imported module)`` pairs whose target sits on a higher floor."""
+    floor = {package: i for i, packages in enumerate(FLOORS) for package in packages}
+
+    def package(module: str) -> str:
+        parts = module.split(".")
+        return parts[1] if len(parts) > 1 else ""
+
+    found = set()
+    for name, path in _modules().items():
+        for node in every_import(ast.parse(path.read_text(encoding="utf-8"))):
+            targets = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+            for target in targets:
+                if target.startswith("mscap") and floor[package(target)] > floor[package(name)]:
+                    found.add((name, target))
+    return found
+
+
+def test_every_package_has_a_floor():
+    packages = {name.split(".")[1] if name.count(".") else "" for name in _modules()}
+    placed = {package for packages in FLOORS for package in packages}
+    assert packages <= placed, f"no floor for {sorted(packages - placed)}"
+
+
+def test_no_package_imports_one_above_it_inside_functions_or_not():
+    found = upward_imports()
+    assert not found - UPWARD, f"new imports up the floors: {sorted(found - UPWARD)}"
+    assert not UPWARD - found, f"gone, remove from UPWARD: {sorted(UPWARD - found)}"
+
+
+def test_the_floor_check_sees_an_import_inside_a_function():
+    tree = ast.parse("def f():\n    from mscap.fem import simulate\nif TYPE_CHECKING:\n    import mscap.cli\n")
+    assert [node.module for node in every_import(tree) if isinstance(node, ast.ImportFrom)] == ["mscap.fem"]
+    assert not [node for node in every_import(tree) if isinstance(node, ast.Import)]

@@ -34,7 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from mscap.mesh.locate import TriangleLocator
+from mscap.geometry.locate import TriangleLocator
 
 __all__ = ["CloughTocher"]
 
@@ -200,7 +200,7 @@ class CloughTocher:
 
     def locate(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Triangle (``-1`` outside) and barycentric coordinates of each point
-        (:class:`mscap.mesh.locate.TriangleLocator`: points within 1e-9 of the domain's
+        (:class:`mscap.geometry.locate.TriangleLocator`: points within 1e-9 of the domain's
         size outside a boundary edge count as on it)."""
         if self._locator is None:
             self._locator = TriangleLocator(self.points, self.triangles)

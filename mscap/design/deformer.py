@@ -43,7 +43,7 @@ import scipy.sparse.linalg as spla
 from mscap.errors import MeshError
 from mscap.geometry.layout import Layout
 from mscap.geometry.polygons import segment_projection
-from mscap.mesh.transfer import p1_matrix
+from mscap.fem.transfer import p1_matrix
 from mscap.mesh.triangulate import TriMesh
 from mscap.scene.settings import SKINNING_METHODS
 

@@ -9,7 +9,7 @@ elastic mesh's 2D vertices follow the *same* blend, interpolated there,
     X2d_fine(q) = X2d_fine0 + W q,      X2d_el(q) = X2d_el0 + T2d W q,
 
 with ``T2d`` the P1 interpolation of the fine 2D mesh at the elastic 2D vertices
-(:func:`mscap.mesh.transfer.p1_matrix`). Both meshes embed the outlines and the sheet edge, so an
+(:func:`mscap.fem.transfer.p1_matrix`). Both meshes embed the outlines and the sheet edge, so an
 elastic vertex on an outline stays on the deformed outline and one on the sheet edge
 stays put (W vanishes there). Every level of each mesh moves with its 2D vertex.
 
@@ -50,7 +50,7 @@ from mscap.fem.adjoint import moved, pose_rest_gradient
 from mscap.fem.elastic.problem import carried_displacement
 from mscap.fem.petsc import LinearSolver, Operator
 from mscap.fem.simulate import Simulation, elastic_setup, factorised, simulate, solve_poses
-from mscap.mesh.transfer import p1_matrix
+from mscap.fem.transfer import p1_matrix
 from mscap.scene import Scene
 from mscap.scene.loader import check_designable
 

@@ -14,7 +14,7 @@ from mscap.design.pipeline import Design, Evaluation, build_design
 from mscap.geometry.layout import Layout, check_layout
 from mscap.geometry.polygons import turning
 from mscap.mesh.shape import neighbour_size_ratios, triangle_angles_deg
-from mscap.mesh.transfer import interpolation_matrix
+from mscap.fem.transfer import interpolation_matrix
 
 __all__ = ["remesh", "resample_outline", "resampled_layout", "needs_remesh", "min_angle", "size_ratio"]
 

@@ -1,4 +1,5 @@
-"""Finite elements: P1/P2 kernels, PETSc plumbing, electrostatics, elasticity, adjoints, the forward loop.
+"""Finite elements: P1/P2 kernels, PETSc plumbing, electrostatics, elasticity, adjoints, the forward loop,
+interpolation between meshes (:mod:`~mscap.fem.transfer`).
 
 Its public names load their module on first use::
 
@@ -16,4 +17,6 @@ __all__, __getattr__ = lazy_names(__name__, {
     "LinearSolver": "petsc",
     "Operator": "petsc",
     "pose_rest_gradient": "adjoint",
+    "interpolation_matrix": "transfer",
+    "p1_matrix": "transfer",
 })

@@ -51,7 +51,7 @@ from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import ElasticState, Loading, NewtonSettings
 from mscap.fem.elastic.problem import ElasticProblem, node_values, rest_geometry
 from mscap.fem.petsc import LinearSolver
-from mscap.fem.profile import phase, timed
+from mscap.profile import phase, timed
 from mscap.fem.simulate import solve_poses
 from mscap.mesh.layered import LayeredMesh
 from mscap.scene.poses import PokePose, StretchPose

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mscap.fem.profile import timed
+from mscap.profile import timed
 
 __all__ = ["Element", "P1", "P2", "element", "basis_gradients", "dof_table", "jacobians", "stiffness",
            "upper_stiffness", "energy_vjp", "index_type"]

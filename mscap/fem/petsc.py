@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from mscap.errors import LinearSolveError
-from mscap.fem.profile import section
+from mscap.profile import section
 
 __all__ = ["petsc", "find_petsc_dir", "DEFAULTS", "set_scene_options", "unused_options", "LinearSolver",
            "LinearSolveError", "Operator"]

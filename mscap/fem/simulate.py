@@ -23,7 +23,7 @@ from mscap.fem.elastic.newton import ElasticState, NewtonSettings, factorise_equ
 from mscap.fem.elastic.problem import ElasticError, ElasticProblem, build_problem
 from mscap.fem.petsc import LinearSolver, Operator
 from mscap.mesh.layered import LayeredMesh, extrude_scene, mesh_elastic, mesh_scene
-from mscap.mesh.transfer import interpolation_matrix
+from mscap.fem.transfer import interpolation_matrix
 
 __all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibria", "capacitances", "equilibrium",
            "factorised", "elastic_setup", "elastic_transfer", "electro_vertices", "release_freed_memory", "element_of"]

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mscap.fem.profile import timed
+from mscap.profile import timed
 
 __all__ = ["POINTS", "WEIGHTS", "GRADIENTS", "UPPER", "upper_stiffness", "stiffness", "energy_vjp",
            "min_jacobian", "volumes"]

@@ -1,4 +1,5 @@
-"""Planar geometry of the sheet (mm): polygon kernels, capacitor layouts, initial layouts.
+"""Planar geometry of the sheet (mm): polygon kernels, capacitor layouts, initial layouts,
+the point locator in triangulations (:mod:`~mscap.geometry.locate`).
 
 Its public names load their module on first use::
 
@@ -15,4 +16,5 @@ __all__, __getattr__ = lazy_names(__name__, {
     "check_layout": "layout",
     "min_gap_mm": "layout",
     "initial_layout": "initial",
+    "TriangleLocator": "locate",
 })

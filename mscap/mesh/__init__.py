@@ -1,5 +1,6 @@
 """Meshes: the size estimate before meshing (budget), the 2D triangulation (gmsh), the
-layered tets, quality, transfer between meshes, io.
+layered tets, quality, io. (Interpolation between meshes is :mod:`mscap.fem.transfer`: it
+evaluates finite-element shape functions.)
 
 Its public names load their module on first use::
 
@@ -16,7 +17,5 @@ __all__, __getattr__ = lazy_names(__name__, {
     "LayeredMesh": "layered",
     "extrude": "layered",
     "TriMesh": "triangulate",
-    "interpolation_matrix": "transfer",
-    "p1_matrix": "transfer",
     "mesh_report": "quality",
 })

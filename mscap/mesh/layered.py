@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mscap.errors import GeometryError
-from mscap.fem.profile import timed
+from mscap.profile import timed
 from mscap.geometry.layout import Layout, check_layout
 from mscap.geometry.polygons import coarsened
 from mscap.mesh.triangulate import TriMesh

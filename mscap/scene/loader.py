@@ -371,7 +371,7 @@ def _read_objects(root: Table, path: str) -> dict:
     t = root.table("objects", required=False)
     if t is None:
         return {}
-    from mscap.bodies.glue import read_objects
+    from mscap.scene.glue import read_objects
 
     return read_objects(t, path)
 

@@ -112,7 +112,7 @@ def read_pose(t: Table, objects: dict | None = None):
     kind = t.get("kind", str)
     name = t.get("name", str)
     if kind == "glue":
-        from mscap.bodies.glue import read_glue_pose
+        from mscap.scene.glue import read_glue_pose
 
         return read_glue_pose(t, objects or {})
     if kind == "free":

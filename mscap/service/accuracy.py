@@ -110,7 +110,7 @@ class Equilibria:
     def on(self, problem) -> list:
         """The displacements interpolated at ``problem``'s rest nodes (the deformation map
         of the coarser mesh at the finer one's material points)."""
-        from mscap.mesh.transfer import interpolation_matrix
+        from mscap.fem.transfer import interpolation_matrix
 
         mapping = interpolation_matrix(self, problem.rest)
         return [None if u is None else mapping @ u for u in self.displacements]

@@ -11,7 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mscap.bodies.basic import cylinder
-from mscap.bodies.glue import _grid, check_covers, read_glue_pose, read_objects
+from mscap.bodies.glue import _grid, check_covers
+from mscap.scene.glue import read_glue_pose, read_objects
 from mscap.bodies.hand import FINGERS, _hand_bend, hand
 from mscap.bodies.pneumatic import pneumatic
 from mscap.bodies.registry import GENERATORS

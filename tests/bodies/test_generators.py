@@ -10,7 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mscap.bodies.basic import _wrist_bend, cantilever, cylinder, wrist
-from mscap.bodies.glue import _grid, check_covers, read_glue_pose, read_objects
+from mscap.bodies.glue import _grid, check_covers
+from mscap.scene.glue import read_glue_pose, read_objects
 from mscap.bodies.kinematics import ParameterError
 from mscap.bodies.registry import GENERATORS
 from mscap.errors import SceneError

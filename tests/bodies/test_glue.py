@@ -13,8 +13,8 @@ from scipy.spatial import Delaunay
 from mscap.scene._toml import Table
 from mscap.errors import GeometryError, SceneError
 from mscap.bodies.glue import (GENERATORS, CloughTocher, GlueObject, GluePose, ParameterError,
-                        Placement, Surface, check_covers, read_glue_pose, read_objects,
-                        register_generator)
+                               Placement, Surface, check_covers, register_generator)
+from mscap.scene.glue import read_glue_pose, read_objects
 from tests.conftest import to_toml
 
 R = 15.0            # cylinder radius (mm) of the convergence study

@@ -78,7 +78,7 @@ def test_a_command_without_petsc_names_its_petsc_options(scene):
 def test_logging_never_initialises_petsc():
     code = """
         import sys
-        from mscap.fem import profile
+        from mscap import profile
         with profile.phase("Newton"), profile.section("assembly"):
             pass
         assert "petsc4py.PETSc" not in sys.modules and profile.totals()["assembly"] > 0

@@ -47,7 +47,7 @@ from mscap.errors import LinearSolveError
 from mscap.fem.elastic.contact import Ball
 from mscap.fem.elastic.problem import ElasticError, ElasticProblem, assemble, total_energy
 from mscap.fem.petsc import Operator
-from mscap.fem.profile import phase, timed
+from mscap.profile import phase, timed
 from mscap.scene.settings import HESSIAN_MODES, ElasticSettings
 
 __all__ = ["Loading", "NewtonSettings", "ElasticState", "solve_pose", "factorise_equilibrium", "HESSIAN_MODES"]

@@ -26,7 +26,7 @@ import scipy.sparse as sp
 from mscap.errors import ElasticError
 from mscap.fem import elements as fem
 from mscap.fem.elastic import neohookean
-from mscap.fem.profile import timed
+from mscap.profile import timed
 from mscap.mesh.layered import LayeredMesh, tet_values
 
 __all__ = ["ElasticError", "ElasticProblem", "Assembly", "build_problem", "rest_geometry", "lame_of_tets",

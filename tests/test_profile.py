@@ -1,4 +1,4 @@
-"""mscap.fem.profile: wall time per kind of work (meshing, assembly, factorisation, solve)."""
+"""mscap.profile: wall time per kind of work (meshing, assembly, factorisation, solve)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from mscap.fem import profile
+from mscap import profile
 
 
 def test_sections_add_up_and_do_not_nest():

@@ -20,8 +20,8 @@ from mscap.errors import GeometryError
 from mscap.geometry.layout import Layout, check_layout
 from mscap.geometry.polygons import coarsened, square
 from mscap.mesh.layered import elastic_layout, extrude, layer_fractions, mesh_elastic, mesh_scene
-from mscap.mesh import transfer
-from mscap.mesh.transfer import interpolation_matrix, locate
+from mscap.fem import transfer
+from mscap.fem.transfer import interpolation_matrix, locate
 from mscap.scene import load_scene
 from mscap.scene.poses import StretchPose
 from mscap.scene.settings import ElasticSettings

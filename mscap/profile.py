@@ -9,7 +9,7 @@ for the outer one only. Whatever a measured total leaves over is Python and nump
 outside the kernels (bookkeeping, transfers, line-search logic), which
 :func:`split` reports as ``"other"``.
 
-    from mscap.fem import profile
+    from mscap import profile
     profile.reset()
     ...                                   # anything
     print(profile.split(total_s))         # {"assembly": .., ..., "other": ..}

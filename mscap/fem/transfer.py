@@ -8,7 +8,7 @@ functions, so ``u_fine = T u_elastic`` and, for adjoints, ``∂/∂u_elastic = T
 It is exact where the two discretisations agree: P1 fields restricted to a shared level
 are the 2D P1 fields of that level.
 
-Points are located in the 2D triangulation by :class:`mscap.mesh.locate.TriangleLocator`.
+Points are located in the 2D triangulation by :class:`mscap.geometry.locate.TriangleLocator`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import scipy.sparse as sp
 
 from mscap.errors import MeshError
 from mscap.fem import elements as fem
-from mscap.mesh.locate import TOLERANCE, TriangleLocator
+from mscap.geometry.locate import TOLERANCE, TriangleLocator
 from mscap.mesh.triangulate import TriMesh
 
 __all__ = ["locate", "p1_matrix", "interpolation_matrix"]

@@ -1,11 +1,11 @@
-"""The one point locator (mscap.mesh.locate), used by the mesh transfer and the glue
+"""The one point locator (mscap.geometry.locate), used by the mesh transfer and the glue
 interpolant: exact barycentric coordinates, round-off on the boundary, holes."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from mscap.mesh.locate import TriangleLocator
+from mscap.geometry.locate import TriangleLocator
 from tests.conftest import grid_trimesh
 
 
