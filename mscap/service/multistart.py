@@ -136,6 +136,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
                              initial_bound_mm=bound.value(record.initial_capacitance_pF))
         final = result.layout
         equilibria = Equilibria.of(result.evaluation) if scene.multistart.error_estimate else None
+        share = result.evaluation.offset_pF  # the leads', routed during the optimisation
         result.design.close()
         del result  # the finer mesh's check below should not add to the design's memory
         release_freed_memory()
@@ -145,13 +146,15 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
                                      time.perf_counter() - start, rank, layout, getattr(exc, "history", ())),
                        cpu_s=meter.cpu_s, peak_rss_mb=meter.peak_rss_mb)
     if scene.multistart.error_estimate and not record.pruned:
-        record = _with_check(scene, record, final, equilibria, bound, ask)
+        record = _with_check(scene, record, final, equilibria, bound, ask, share)
     return replace(record, peak_rss_mb=meter.peak_rss_mb)  # the start's and its check's
 
 
-def _with_check(scene: Scene, record, final, equilibria, bound, ask):
+def _with_check(scene: Scene, record, final, equilibria, bound, ask, share=None):
     """``record`` with its finer-mesh check (``scene``: the start's design scene), unless
-    the master says a finished run of its k beats it; a failed check leaves NaN."""
+    the master says a finished run of its k beats it; a failed check leaves NaN. ``share``:
+    the leads' share in the record's capacitances (routed during the optimisation), held
+    on the finer mesh too, so that the check measures the plates' discretisation alone."""
     if ask is not None and not scene.multistart.check_all_runs:
         try:
             beaten = ask(Finished(record.id, record.k, record.metric, record.bound_mm))
@@ -163,16 +166,18 @@ def _with_check(scene: Scene, record, final, equilibria, bound, ask):
             return record
     cpu = time.process_time()
     try:
-        check = estimate_error(scene, final, record.final_capacitance_pF, equilibria)
+        plates = record.final_capacitance_pF if share is None else record.final_capacitance_pF - share
+        check = estimate_error(scene, final, plates, equilibria)
     except Exception as exc:  # the run stands; only its accuracy is unknown
         log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
                     record.id, type(exc).__name__, exc)
         return replace(record, error_estimate_cpu_s=time.process_time() - cpu)
     # The bound of the same design on the finer mesh: the read-back scenes' k is checked on it
     # as the others' is on the finer min L1 (mscap.service.selection).
-    return replace(record, finer_capacitance_pF=check.capacitance_pF, error_estimate_wall_s=check.wall_s,
+    finer = check.capacitance_pF if share is None else check.capacitance_pF + share
+    return replace(record, finer_capacitance_pF=finer, error_estimate_wall_s=check.wall_s,
                    error_estimate_cpu_s=time.process_time() - cpu,
-                   finer_bound_mm=math.nan if bound is None else bound.value(check.capacitance_pF))
+                   finer_bound_mm=math.nan if bound is None else bound.value(finer))
 
 
 @dataclass(frozen=True)
@@ -199,8 +204,17 @@ def run_check(scene: Scene, record, ask: Callable | None = None):
     release_freed_memory()
     meter = Meter()
     start_scene = design_scene(with_layout(scene, start_layout(scene, record.k, record.seed, record.init)))
+    share = None  # the leads' share in the stored capacitances is not stored: routed again
+    if start_scene.fabrication.route_during_optimisation:
+        from mscap.errors import FabricationError
+        from mscap.fabrication.during import wiring_offset
+
+        try:
+            share = wiring_offset(start_scene, record.final_outlines).offset_pF
+        except FabricationError as exc:
+            log.warning("start %s: its design no longer routes (%s); checked as plates alone", record.id, exc)
     checked = _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None,
-                          read_back_estimate(start_scene), ask)
+                          read_back_estimate(start_scene), ask, share)
     # The larger of the run's peak (an earlier session's; NaN if not stored) and the check's here.
     peak = meter.peak_rss_mb if not record.peak_rss_mb > meter.peak_rss_mb else record.peak_rss_mb
     return replace(checked, peak_rss_mb=peak)

@@ -117,3 +117,26 @@ def test_the_command_reports_each_route(scene_path, tmp_path, capsys):
     assert [r["event"] for r in summary["reroutes"]] == ["start", "end"]
     assert summary["final_J"] == summary["reroutes"][-1]["J_after"]
     assert "2 x 1 array" in summary["reroutes"][0]["summary"]
+
+
+def test_a_routed_start_checks_its_plates_on_the_finer_mesh_and_keeps_the_share(scene_path):
+    """A multi-start run stores the routed sensor's capacitances; its finer-mesh check
+    re-simulates the plates, so the leads' share is taken out before the comparison and
+    put back into the finer capacitances: the estimated error is the plates'
+    discretisation, as in the same start without routing (no step: the same layout)."""
+    from mscap.service.multistart import run_check, run_start
+    from mscap.service.selection import StartConfig
+
+    scene = load_scene(scene_path)
+    plain_scene = dataclasses.replace(scene, fabrication=dataclasses.replace(scene.fabrication,
+                                                                             route_during_optimisation=False))
+    routed, plain = (run_start(s, StartConfig(2, 0, "scene"), max_iterations=0) for s in (scene, plain_scene))
+    assert routed.status == plain.status == "ok"
+    share = routed.final_capacitance_pF - plain.final_capacitance_pF
+    assert np.all(share > 0.001 * plain.final_capacitance_pF)
+    np.testing.assert_allclose(routed.finer_capacitance_pF - routed.final_capacitance_pF,
+                               plain.finer_capacitance_pF - plain.final_capacitance_pF, rtol=1e-6, atol=1e-9)
+    # A check made later (a job resumed between a run and its check) routes the design again.
+    unchecked = dataclasses.replace(routed, finer_capacitance_pF=np.full_like(routed.finer_capacitance_pF, np.nan))
+    np.testing.assert_allclose(run_check(scene, unchecked).finer_capacitance_pF, routed.finer_capacitance_pF,
+                               rtol=1e-6)
