@@ -12,9 +12,9 @@ net j) gives every reading at once, ``c_ij = −C(R_i, C_j)``.
 
 The plate-only design is meshed on the very mesh of the wired one (both conform to the nets
 and the plates), with its plates as the conductors of both layers, so that the two differ
-by the wiring alone. The elastic problem is the scene's own
-with the nets in place of the plates (:func:`wired_elastic_mesh`): a lead is carbon-black
-silicone in its own layer, as stiff as a plate.
+by the wiring alone. The elastic problem is the scene's own with the nets in place of the
+plates (:func:`wired_elastic_mesh`): a lead is carbon-black silicone in its own layer, as
+stiff as a plate.
 """
 
 from __future__ import annotations
@@ -291,9 +291,7 @@ def _resampled(xy: np.ndarray, plate_edges, plate_vertices, spacing: float) -> n
 def wired_mesh(scene, wiring: Wiring) -> LayeredMesh:
     """``wiring``'s conductors meshed on ``scene``'s sheet, stack and mesh sizes: bottom
     conductor i, top conductor j."""
-    return net_mesh(scene.sheet_outline_mm, list(wiring.bottom), list(wiring.top), scene.mesh,
-                    [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
-                    snap_to=shapely.ops.unary_union(wiring.plates), geometry=wiring.regions)
+    return _meshed(scene, wiring, scene.mesh)
 
 
 def wired_elastic_mesh(scene, wiring: Wiring) -> LayeredMesh | None:
@@ -306,10 +304,14 @@ def wired_elastic_mesh(scene, wiring: Wiring) -> LayeredMesh | None:
 
     if scene.elastic.mesh == "shared" or all(p.kind == "free" for p in scene.poses):
         return None
-    return net_mesh(scene.sheet_outline_mm, list(wiring.bottom), list(wiring.top), elastic_sizes(scene),
+    return _meshed(scene, wiring, elastic_sizes(scene), slabs=scene.elastic.elements_through_thickness or None)
+
+
+def _meshed(scene, wiring: Wiring, sizes, slabs: int | None = None) -> LayeredMesh:
+    """:func:`net_mesh` of ``wiring`` on ``scene``'s sheet and stack at ``sizes``."""
+    return net_mesh(scene.sheet_outline_mm, list(wiring.bottom), list(wiring.top), sizes,
                     [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
-                    snap_to=shapely.ops.unary_union(wiring.plates), geometry=wiring.regions,
-                    slabs=scene.elastic.elements_through_thickness or None)
+                    snap_to=shapely.ops.unary_union(wiring.plates), geometry=wiring.regions, slabs=slabs)
 
 
 def readings(scene, wiring: Wiring, mesh: LayeredMesh | None = None, progress=None,
