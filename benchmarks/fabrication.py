@@ -31,6 +31,7 @@ import numpy as np
 from mscap.errors import FabricationError
 from mscap.fabrication.report import write_fabrication
 from mscap.fabrication.router import CROSSING_MM2, route
+from mscap.viz.fabrication import plot_routing
 from mscap.geometry.layout import grid_layout
 from mscap.scene import load_scene
 from mscap.scene.settings import FabricationSettings
@@ -53,7 +54,7 @@ def fabricate(spec: str, figures: Path | None, stiffness: list | None = None) ->
     tmp = Path(tempfile.mkdtemp())
     try:
         started = time.perf_counter()
-        document = write_fabrication(routing, tmp / "out", scene, label)
+        document = write_fabrication(routing, tmp / "out", scene, label, preview=plot_routing)
         written = time.perf_counter() - started
         if figures is not None:
             figures.mkdir(parents=True, exist_ok=True)

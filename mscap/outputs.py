@@ -26,7 +26,7 @@ from typing import Callable, Iterable, Sequence
 from mscap.errors import MscapError
 
 __all__ = ["output_directory", "replace_file", "replace_text", "replace_csv", "file_stem", "file_stems",
-           "MAX_STEM"]
+           "MAX_STEM", "split_design_spec"]
 
 #: Longest file stem made from a name (file systems allow 255 bytes per component, and a
 #: suffix such as ``_elastic.vtu`` and the temporary file's prefix must fit beside it).
@@ -111,3 +111,11 @@ def file_stems(names: list[str]) -> list[str]:
         seen.add(candidate.lower())
         stems.append(candidate)
     return stems
+
+
+def split_design_spec(spec: str) -> tuple[str, str | None]:
+    """``"results.h5:RUN"`` → ``("results.h5", "RUN")``; ``"results.h5"`` → ``(…, None)``."""
+    path, sep, rid = str(spec).rpartition(":")
+    if not sep or not path.endswith((".h5", ".hdf5")):
+        return str(spec), None
+    return path, rid or None

@@ -17,7 +17,7 @@
 # (slurm/README.md): a TERM to srun makes srun SIGKILL every task, so the script signals the
 # job's steps instead (`scancel --signal=TERM JOB`, which leaves the batch script alone); a TERM
 # to mpirun makes mpirun kill the ranks, while SIGUSR1 is passed on to every rank untouched,
-# so mpirun gets SIGUSR1. mscap's workers ignore both signals (mscap/service/farm.py).
+# so mpirun gets SIGUSR1. mscap's workers ignore both signals (mscap/farm.py).
 
 mscap_environment() {
     local name="$1"

@@ -25,7 +25,7 @@ def default_paths(spec: str) -> tuple[Path, Path]:
     """The simulation cache and the output directory of the design ``spec``: beside a
     results file (``<results>_calibration.h5``, ``<results>_calibration/``) or inside an
     ``mscap optimize`` directory (``DIR/calibration.h5``, ``DIR/calibration/``)."""
-    from mscap.service.designs import split_design_spec
+    from mscap.outputs import split_design_spec
 
     results_path = Path(split_design_spec(spec)[0])
     if results_path.is_dir():
@@ -62,11 +62,11 @@ def summary(scene: Scene, scores, noise) -> dict:
     return document
 
 
-def write_outputs(outdir: Path, scene: Scene, scores, noise) -> None:
-    """``errors.csv`` (one row per design and sequence pose), ``summary.json`` and the
-    ``errors.png`` figure (the paper's Fig. 15) in ``outdir``."""
-    from mscap.viz.calibration import error_figure
-
+def write_outputs(outdir: Path, scene: Scene, scores, noise, figure=None) -> None:
+    """``errors.csv`` (one row per design and sequence pose), ``summary.json`` and, given
+    ``figure(path, scene, scores)`` (``mscap calibrate`` gives
+    :func:`mscap.viz.calibration.error_figure`), the ``errors.png`` figure (the paper's
+    Fig. 15) in ``outdir``."""
     cal = scene.calibration
     outdir = output_directory(outdir, "calibrate -o")
 
@@ -80,7 +80,8 @@ def write_outputs(outdir: Path, scene: Scene, scores, noise) -> None:
 
     replace_csv(outdir / "errors.csv", rows())
     replace_text(outdir / "summary.json", json.dumps(summary(scene, scores, noise), indent=2) + "\n")
-    replace_file(outdir / "errors.png", lambda path: error_figure(path, scene, scores))
+    if figure is not None:
+        replace_file(outdir / "errors.png", lambda path: figure(path, scene, scores))
 
 
 def text_report(scene: Scene, scores, noise) -> str:

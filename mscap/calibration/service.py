@@ -32,7 +32,6 @@ import math
 import time
 import tomllib
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 import h5py
@@ -43,7 +42,7 @@ from mscap.design.readback import reading_variance
 from mscap.errors import CalibrationError, MscapError
 from mscap.geometry.layout import Layout
 from mscap.scene.calibration import CalibrationSettings, family_poses
-from mscap.service import farm
+from mscap import farm
 
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
@@ -176,10 +175,9 @@ def _work(scene: Scene, designs, poses_of):
 # ---------------------------------------------------------------- cache (master)
 def _open_cache(path, scene: Scene) -> h5py.File:
     """The calibration cache at ``path``, locked for this process like a results file
-    (:mod:`mscap.service.outfile`: never through a link, never truncated while another
+    (:mod:`mscap.outfile`: never through a link, never truncated while another
     process holds it); started over when it holds another scene or pose family."""
-    from mscap.service.outfile import WriteLock, check_output_path
-    from mscap.service.store import ResultsFile
+    from mscap.outfile import ResultsFile, WriteLock, check_output_path
 
     physics, fam = physics_sha256(scene), settings(scene).family_sha256()
     lock = WriteLock(check_output_path(path))

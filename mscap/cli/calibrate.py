@@ -59,6 +59,7 @@ def run(args) -> int:
     from mscap.cli.common import load_scene_for, progress_printer
     from mscap.outputs import output_directory
     from mscap.service.designs import design_layouts
+    from mscap.viz.calibration import error_figure
 
     comm = MPI.COMM_WORLD
     rank = comm.Get_rank()
@@ -98,7 +99,7 @@ def run(args) -> int:
     if rank != 0:
         return 0
     scores = evaluate(scene, designs, cache, noise)
-    write_outputs(outdir, scene, scores, noise)
+    write_outputs(outdir, scene, scores, noise, figure=error_figure)
     print(text_report(scene, scores, noise))
     print(f"wrote {outdir}/errors.csv, summary.json, errors.png")
     return 0

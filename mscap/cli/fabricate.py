@@ -39,6 +39,7 @@ def run(args) -> int:
     from mscap.scene import load_scene
     from mscap.service.designs import check_scene, read_design, read_optimize_output
     from mscap.service.store import read_store
+    from mscap.viz.fabrication import plot_routing
 
     check_target(args.output)  # before any work
     source = Path(args.design)
@@ -64,7 +65,7 @@ def run(args) -> int:
         outlines, label = design.outlines, design.label
     routing = route(outlines, scene.sheet_outline_mm, scene.fabrication,
                     progress=None if args.quiet else lambda line: print(line, file=sys.stderr, flush=True))
-    document = write_fabrication(routing, args.output, scene, label)
+    document = write_fabrication(routing, args.output, scene, label, preview=plot_routing)
     check = document["design_rule_check"]["layers"]
     print(f"{label}: {routing.array.rows} x {routing.array.columns} array, connector on the {routing.edge} edge, "
           f"{routing.length_mm:.1f} mm of leads, "

@@ -10,7 +10,7 @@ Its public names load their module on first use::
 
     from mscap.fabrication import route, write_fabrication
     routing = route(layout.outlines, scene.sheet_outline_mm, scene.fabrication)
-    write_fabrication(routing, "out/stencils", scene, "my design")
+    write_fabrication(routing, "out/stencils", scene, "my design")   # preview=plot_routing draws preview.png
 """
 
 from mscap._lazy import lazy_names

@@ -84,17 +84,18 @@ def fabrication_document(routing: Routing, check: dict, scene, design: str) -> d
     }
 
 
-def write_fabrication(routing: Routing, out, scene, design: str) -> dict:
+def write_fabrication(routing: Routing, out, scene, design: str, preview=None) -> dict:
     """Write :data:`FABRICATION_FILES` of ``routing`` to the new directory ``out``; the
     design rules are checked on the written files before the directory appears.
+    ``preview(routing, path, title)`` draws ``preview.png`` (``mscap fabricate`` gives
+    :func:`mscap.viz.fabrication.plot_routing`; without it there is no preview: figures
+    are the floor above, docs/architecture.md).
 
     Raises
     ------
     FabricationError
         ``out`` exists (:func:`check_target`), or the written files break a rule.
     """
-    from mscap.viz.fabrication import plot_routing
-
     out = check_target(out)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent if str(out.parent) else "."))
     try:
@@ -110,7 +111,8 @@ def write_fabrication(routing: Routing, out, scene, design: str) -> dict:
                                    + (f" (and {len(check['violations']) - 3} more)" if len(check["violations"]) > 3
                                       else ""))
         document = fabrication_document(routing, _finite(check), scene, design)
-        plot_routing(routing, tmp / "preview.png", title=design)
+        if preview is not None:
+            preview(routing, tmp / "preview.png", title=design)
         (tmp / "fabrication.json").write_text(json.dumps(document, indent=1))
         os.rename(tmp, out)
     except BaseException:

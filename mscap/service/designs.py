@@ -24,6 +24,7 @@ import h5py
 import numpy as np
 
 from mscap.design.history import HISTORY_FIELDS
+from mscap.outputs import split_design_spec
 from mscap.service.store import StoreError, read_run, read_store, store_selection
 
 if TYPE_CHECKING:
@@ -53,14 +54,6 @@ class StoredDesign:
     outlines: tuple[np.ndarray, ...]
     poses: tuple[str, ...]
     capacitance_pF: np.ndarray
-
-
-def split_design_spec(spec: str) -> tuple[str, str | None]:
-    """``"results.h5:RUN"`` → ``("results.h5", "RUN")``; ``"results.h5"`` → ``(…, None)``."""
-    path, sep, rid = str(spec).rpartition(":")
-    if not sep or not path.endswith((".h5", ".hdf5")):
-        return str(spec), None
-    return path, rid or None
 
 
 def check_scene(store: h5py.File, scene: Scene) -> None:

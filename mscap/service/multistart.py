@@ -10,7 +10,7 @@ gets the next configuration as soon as it returns one — and only the master wr
 each run is stored and ``fsync``-ed, then ``/selection`` is rewritten, then the run is
 announced, so a killed job loses at most the runs in flight. A write the disk cannot
 take (:class:`~mscap.errors.StoreFullError`) or any other error of the master ends every
-rank of the job (:func:`mscap.service.farm.run`); the file keeps every stored run. With one
+rank of the job (:func:`mscap.farm.run`); the file keeps every stored run. With one
 rank (no ``mpirun``) the master runs every start itself.
 
 A start's result depends only on the scene and its (k, seed, init): never on the rank,
@@ -30,7 +30,7 @@ prints a status line of its busy workers after :data:`~mscap.service.heartbeat.H
 seconds without a progress line (:mod:`mscap.service.heartbeat`). SIGTERM (what SLURM sends
 at the time limit), SIGUSR1 and Ctrl-C stop the master from handing out more work; busy
 workers drop their start at its next step (it runs again on resume), the master records
-what finished and writes the selection (:func:`mscap.service.farm.run`).
+what finished and writes the selection (:func:`mscap.farm.run`).
 
 In a scene with ``[calibration]`` the starts are followed by a calibration of the best
 designs, farmed the same way, and the design and k are chosen on calibrated read-back error
@@ -51,7 +51,8 @@ from mscap.fem.simulate import release_freed_memory
 from mscap.mesh.budget import check_scene
 from mscap.service.accuracy import Equilibria, estimate_error, finer
 from mscap.design.readback import read_back_estimate
-from mscap.service import calibrated, farm
+from mscap import farm
+from mscap.service import calibrated
 from mscap.service.forecast import Forecast, duration
 from mscap.service.heartbeat import HEARTBEAT_S, Heartbeat, Progress
 from mscap.service.pruning import Envelope, PruneRule, Rungs, Verdict, history_values, prune_rule, score, \
@@ -100,7 +101,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     a :class:`~mscap.service.heartbeat.Progress` after every accepted step (the master's
     heartbeat) and answers at each pruning rung (:func:`mscap.service.pruning.score`) with a
     :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned. When
-    the master is stopping, ``ask`` raises :class:`~mscap.service.farm.Abandoned`, which
+    the master is stopping, ``ask`` raises :class:`~mscap.farm.Abandoned`, which
     passes through: the start is not recorded and runs again on resume."""
     from mscap.design.optimizer import optimize
     from mscap.design.starts import start_design

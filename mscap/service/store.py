@@ -3,7 +3,7 @@ attributes only, readable with ``h5ls``/``h5dump``).
 
 The schema is declared once, in :mod:`mscap.service.schema` (re-exported here with
 :class:`RunRecord`); the checks of a file live in :mod:`mscap.service.checks`. Only one
-process (the master) writes, holding the file's lock (:mod:`mscap.service.outfile`).
+process (the master) writes, holding the file's lock (:mod:`mscap.outfile`).
 Before each run the room it needs is reserved; the run is written under a temporary
 name, renamed when complete, then the file is flushed and ``fsync``-ed, so a ``kill -9``
 leaves at most a temporary group and a full disk nothing at all; ``open_store`` deletes
@@ -28,7 +28,7 @@ from mscap.errors import StoreError, StoreFullError
 from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
 from mscap.service.checks import check_store, damaged_runs, one_line, run_problem
-from mscap.service.outfile import WriteLock, check_output_path, reserve, room_text
+from mscap.outfile import ResultsFile, WriteLock, check_output_path, room_text
 from mscap.service.schema import (CALIBRATION_ITEMS, FORMAT, HISTORY_COLUMNS, ROOT_ATTRS, RUN_ATTRS, RUN_DATASETS,
                                   SCHEMA_VERSION, SELECTION_ITEMS, TEMP_PREFIX, RunRecord, failed_record, record_bytes,
                                   record_from_result, run_summary, schema_markdown)
@@ -60,48 +60,6 @@ CREATE_BYTES = 64 * 1024
 RUN_OVERHEAD_BYTES = 64 * 1024
 #: Per run already stored: the name index of ``/runs`` may be reallocated at twice its size.
 INDEX_BYTES_PER_RUN = 64
-
-
-class ResultsFile(h5py.File):
-    """A results file open for writing: an ``h5py.File`` that holds the file's
-    :class:`~mscap.service.outfile.WriteLock` (released by ``close``), makes room before
-    each write (:meth:`make_room`) and makes each write durable (:meth:`commit`)."""
-
-    def __init__(self, lock: WriteLock, mode: str):
-        # Default libver (no "latest"): files not closed cleanly carry no open-for-write
-        # flag and reopen without h5clear. HDF5's own locking stays off: ``lock`` holds the
-        # same flock on the file for the whole session.
-        super().__init__(lock.path, mode, locking=False)
-        self.lock = lock
-        self.failed = False  # a write failed: closing must not raise over that error
-
-    def make_room(self, nbytes: int) -> None:
-        """Allocate ``nbytes`` past HDF5's end of file, or raise
-        :class:`~mscap.errors.StoreFullError` with nothing written."""
-        reserve(self.lock, int(self.id.get_filesize()), int(nbytes))
-
-    def commit(self) -> None:
-        """Flush HDF5's buffers and ``fsync``: what was written survives a crash."""
-        self.flush()
-        self.lock.sync()
-
-    def close(self) -> None:
-        try:
-            if self.id.valid:
-                super().close()
-        except (OSError, RuntimeError):
-            if not self.failed:
-                raise
-        finally:
-            self.lock.close()
-
-    def discard(self) -> None:
-        """Close and delete the file (a new file whose writing failed)."""
-        try:
-            super().close()
-        except Exception:  # the file goes anyway
-            pass
-        self.lock.remove()
 
 
 class WriteGuard:
@@ -180,7 +138,7 @@ def open_store(path, scene: Scene, mpi_size: int = 1, force: bool = False, new_s
     ``force`` starts over: the file is recreated empty. ``new_session=False`` reopens the
     file within the session that opened it (the in-run calibration, after the starts): the
     session's attributes stay. ``path`` follows the rule of
-    :func:`~mscap.service.outfile.check_output_path` (no link; directories created).
+    :func:`~mscap.outfile.check_output_path` (no link; directories created).
     Returns the open, writable :class:`ResultsFile`; close it (or use it as a context
     manager) when done.
 

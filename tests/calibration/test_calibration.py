@@ -284,10 +284,10 @@ def test_cache_is_reused_extended_and_survives_a_noise_change(write_scene, tmp_p
 
 
 def test_a_cache_held_elsewhere_or_behind_a_link_is_refused_untouched(write_scene, tmp_path):
-    """The cache is opened like a results file (mscap.service.outfile): a cache another
+    """The cache is opened like a results file (mscap.outfile): a cache another
     process writes is refused before anything is truncated, and a link is never followed."""
     from mscap.errors import MscapError
-    from mscap.service.outfile import WriteLock
+    from mscap.outfile import WriteLock
 
     scene = load_scene(write_scene(calibration_scene()))
     held = tmp_path / "held.h5"

@@ -17,6 +17,7 @@ from shapely.ops import unary_union
 from mscap.errors import FabricationError
 from mscap.fabrication.check import check_layer
 from mscap.fabrication.report import FABRICATION_FILES, write_fabrication
+from mscap.viz.fabrication import plot_routing
 from mscap.fabrication.router import route
 from mscap.fabrication.stencil import read_stencil
 from mscap.scene.settings import EPSILON0_PF_PER_MM, FabricationSettings
@@ -36,7 +37,7 @@ def written(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("fabricate")
     scene, plates = pneumatic_design(tmp)
     routing = route(plates, scene.sheet_outline_mm, scene.fabrication)
-    document = write_fabrication(routing, tmp / "out", scene, "pneumatic k3")
+    document = write_fabrication(routing, tmp / "out", scene, "pneumatic k3", preview=plot_routing)
     return tmp / "out", [Polygon(p) for p in plates], document, scene
 
 

@@ -199,7 +199,7 @@ def test_mesh_command_reports_bad_scene(small_scene_dict, write_scene, capsys):
 
 def test_meshing_keeps_the_processs_signal_handling(tmp_path):
     """gmsh.initialize/finalize reset SIGTERM to the default; an MPI worker that ignores it
-    (mscap/service/farm.py: SLURM signals every task of a step) must survive a mesh and
+    (mscap/farm.py: SLURM signals every task of a step) must survive a mesh and
     then a SIGTERM. Run in a child process: its dispositions are its own."""
     import os
     import subprocess

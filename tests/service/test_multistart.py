@@ -293,7 +293,8 @@ def test_a_best_run_left_unchecked_is_checked_when_the_job_resumes(scene_file, t
 def test_a_stopping_job_keeps_a_finished_run_without_its_check(scene_file):
     from types import SimpleNamespace
 
-    from mscap.service import farm, multistart
+    from mscap import farm
+    from mscap.service import multistart
     from mscap.scene import load_scene
 
     record = SimpleNamespace(id="k2_s2000_lloyd", k=2, metric=1.0, bound_mm=float("nan"))
@@ -536,7 +537,7 @@ def test_a_rank_done_early_waits_for_the_others_without_a_core(tmp_path):
         import sys, time
         sys.path.insert(0, {str(ROOT)!r})
         from mpi4py import MPI
-        from mscap.service.farm import quiet_barrier
+        from mscap.farm import quiet_barrier
         comm = MPI.COMM_WORLD
         if comm.Get_rank() == 0:
             time.sleep(1.5)

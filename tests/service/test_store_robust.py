@@ -295,10 +295,11 @@ def test_a_write_that_fails_despite_the_reservation_is_repaired_by_the_resume(tm
         sys.path.insert(0, {str(ROOT)!r})
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         from mscap.scene import load_scene
+        from mscap import outfile
         from mscap.service import store as st
         from tests.conftest import synthetic_record
         store = st.open_store({str(path)!r}, load_scene({str(scene.path)!r}))
-        st.reserve = lambda *args: None
+        outfile.reserve = lambda *args: None
         resource.setrlimit(resource.RLIMIT_FSIZE, (55000, 55000))
         try:
             for seed in range(100):

@@ -14,6 +14,9 @@ and room on the disk before each write (docs/hdf5.md, "Writing safely").
   end of the file. So before each run the writer allocates the run's estimated size past
   HDF5's end of file (``posix_fallocate``); if the file system refuses, nothing of the HDF5
   structure was touched and the job stops with the path and the free space.
+- **The file** (:class:`ResultsFile`): an ``h5py.File`` that holds its lock, makes room
+  before each write and makes each write durable; the multi-start's results file and the
+  calibration's cache are both one.
 """
 
 from __future__ import annotations
@@ -26,10 +29,12 @@ import resource
 import shutil
 from pathlib import Path
 
+import h5py
+
 from mscap.errors import StoreError, StoreFullError
 from mscap.outputs import output_directory
 
-__all__ = ["check_output_path", "WriteLock", "reserve", "room_text"]
+__all__ = ["check_output_path", "WriteLock", "ResultsFile", "reserve", "room_text"]
 
 log = logging.getLogger(__name__)
 
@@ -191,3 +196,45 @@ def room_text(path) -> str:
     if limit != resource.RLIM_INFINITY:
         free += f", the file-size limit (ulimit -f) is {_kib(limit)}"
     return free
+
+
+class ResultsFile(h5py.File):
+    """A results file open for writing: an ``h5py.File`` that holds the file's
+    :class:`WriteLock` (released by ``close``), makes room before
+    each write (:meth:`make_room`) and makes each write durable (:meth:`commit`)."""
+
+    def __init__(self, lock: WriteLock, mode: str):
+        # Default libver (no "latest"): files not closed cleanly carry no open-for-write
+        # flag and reopen without h5clear. HDF5's own locking stays off: ``lock`` holds the
+        # same flock on the file for the whole session.
+        super().__init__(lock.path, mode, locking=False)
+        self.lock = lock
+        self.failed = False  # a write failed: closing must not raise over that error
+
+    def make_room(self, nbytes: int) -> None:
+        """Allocate ``nbytes`` past HDF5's end of file, or raise
+        :class:`~mscap.errors.StoreFullError` with nothing written."""
+        reserve(self.lock, int(self.id.get_filesize()), int(nbytes))
+
+    def commit(self) -> None:
+        """Flush HDF5's buffers and ``fsync``: what was written survives a crash."""
+        self.flush()
+        self.lock.sync()
+
+    def close(self) -> None:
+        try:
+            if self.id.valid:
+                super().close()
+        except (OSError, RuntimeError):
+            if not self.failed:
+                raise
+        finally:
+            self.lock.close()
+
+    def discard(self) -> None:
+        """Close and delete the file (a new file whose writing failed)."""
+        try:
+            super().close()
+        except Exception:  # the file goes anyway
+            pass
+        self.lock.remove()
