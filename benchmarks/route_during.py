@@ -65,6 +65,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--init", default="lloyd")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "route_during")
+    parser.add_argument("--figure", type=Path, help="both routed designs side by side, as PNG")
     args = parser.parse_args(argv)
     name = f"{args.scene.stem}_k{args.k}_s{args.seed}_{args.init}"
     out = args.out / name
@@ -109,7 +110,28 @@ def main(argv=None) -> int:
           f"{max((r['offset_change_pF'] for r in moves), default=0.0):.3g} | {100 * largest:.3f} % | "
           f"{100 * max(gained, default=0.0):.2f} % | "
           + f"{plain['time_s']:.0f} / {summary['time_s']:.0f} |")
+    if args.figure:
+        side_by_side(args.figure, [out / "fabricate_plates" / "preview.png", out / "fabricate_during" / "preview.png"],
+                     [f"optimised, then routed: {after:.3f} mm as wired",
+                      f"routed during the optimisation: {during:.3f} mm as wired"])
     return 0
+
+
+def side_by_side(path: Path, images: list[Path], titles: list[str]) -> None:
+    """The ``mscap fabricate`` previews ``images`` in one row, titled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(images), figsize=(6 * len(images), 5))
+    for ax, image, title in zip(axes, images, titles):
+        ax.imshow(plt.imread(image))
+        ax.set_title(title, fontsize=10)
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
 
 
 if __name__ == "__main__":
