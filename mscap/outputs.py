@@ -11,6 +11,9 @@ Three rules, each a one-line :class:`~mscap.errors.MscapError` when it cannot ho
   overwrite the file it points to, and a failed write leaves the old file whole;
 - names taken from a scene (pose names) pass :func:`file_stem` first: no separators, no
   leading dot, at most :data:`MAX_STEM` characters.
+
+Also :func:`split_design_spec`: the ``FILE.h5[:RUN]`` by which the commands name a stored
+design, and from which ``mscap calibrate`` names its outputs.
 """
 
 from __future__ import annotations
