@@ -18,26 +18,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-EXE = str(Path(sys.executable).with_name("mscap"))
-ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
-
-def run(*args: str, log: Path, ranks: int = 1) -> float:
-    command = ([EXE] if ranks == 1 else ["mpirun", "-n", str(ranks), "--oversubscribe", EXE]) + list(args)
-    print("$", " ".join(command), flush=True)
-    started = time.perf_counter()
-    with open(log, "a") as out:
-        done = subprocess.run(command, env=ENV, stdout=out, stderr=subprocess.STDOUT, cwd=ROOT)
-    if done.returncode:
-        sys.exit(f"{' '.join(args)} failed (exit {done.returncode}); see {log}")
-    return time.perf_counter() - started
+from quick_scenes import mscap  # noqa: E402  (the timed mpirun wrapper)
 
 
 def routed_scene(scene: Path, out: Path) -> Path:
@@ -77,15 +64,15 @@ def main(argv=None) -> int:
     for kind, scene in (("plates", args.scene), ("during", routed)):
         design = out / f"optimize_{kind}"
         if not (design / "summary.json").exists():
-            run("optimize", str(scene), *start, "-o", str(design), log=log)
+            mscap("optimize", str(scene), *start, "-o", str(design), ranks=1, log=log)
         fab = out / f"fabricate_{kind}"
         if not (fab / "fabrication.json").exists():
-            run("fabricate", str(design), "--scene", str(args.scene), "-o", str(fab), "-q", log=log)
+            mscap("fabricate", str(design), "--scene", str(args.scene), "-o", str(fab), "-q", ranks=1, log=log)
         calibration = out / f"calibration_{kind}"
         if not (calibration / "summary.json").exists():
-            run(
+            mscap(
                 "calibrate", str(args.scene), "--design", str(design), "--baseline", "--wiring", str(fab),
-                "-o", str(calibration), "--cache", str(out / f"cache_{kind}.h5"), "-q", log=log, ranks=3)
+                "-o", str(calibration), "--cache", str(out / f"cache_{kind}.h5"), "-q", ranks=3, log=log)
         rows[kind] = errors(calibration)
     summary = json.loads((out / "optimize_during" / "summary.json").read_text())
     plain = json.loads((out / "optimize_plates" / "summary.json").read_text())
