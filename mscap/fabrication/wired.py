@@ -186,6 +186,52 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
     bottom = [shapely.ops.unary_union([resampled(p) for p in getattr(n, "geoms", [n])]) for n in bottom]
     top = [shapely.ops.unary_union([resampled(p) for p in getattr(n, "geoms", [n])]) for n in top]
     parts = [resampled(part) for region in geometry for part in getattr(region, "geoms", [region])]
+    points, triangles = _triangulated(sheet, parts, settings)
+    areas = np.abs(TriMesh(points, triangles, np.full(len(triangles), -1)).areas())
+    centroid = points[triangles].mean(axis=1)
+    label = {}
+    for layer, nets in (("bottom", bottom), ("top", top)):
+        label[layer] = np.full(len(triangles), -1, dtype=np.int64)
+        for i, net in enumerate(nets):
+            label[layer][shapely.contains_xy(net.buffer(1e-6), centroid[:, 0], centroid[:, 1])] = i
+    for layer, nets in (("bottom", bottom), ("top", top)):
+        area = np.bincount(label[layer][label[layer] >= 0], minlength=len(nets))
+        for i, net in enumerate(nets):
+            mesh_area = areas[label[layer] == i].sum()
+            if not abs(mesh_area - net.area) <= 1e-3 * net.area + 1e-3:
+                raise MeshError(f"the wired mesh covers {mesh_area:.6g} mm2 of {layer} conductor {i}, "
+                                f"whose outline holds {net.area:.6g} mm2 ({int(area[i])} triangles)")
+    mesh2d = TriMesh(points, triangles, np.where(label["bottom"] >= 0, label["bottom"], label["top"]),
+                     conductor_of_layer=np.column_stack([label["bottom"], label["top"]]))
+    mesh = extrude(mesh2d, thicknesses_mm, elements_per_layer, slabs=slabs)
+    layer = mesh.layer_of_tet
+    conductor = np.full(len(mesh.tets), -1, dtype=np.int32)
+    on_bottom, on_top = layer == BOTTOM_PLATE_LAYER, layer == TOP_PLATE_LAYER
+    conductor[on_bottom] = label["bottom"][mesh.triangle_of_tet[on_bottom]]
+    conductor[on_top] = label["top"][mesh.triangle_of_tet[on_top]]
+    log.info("wired mesh: %d triangles, %d tets", len(triangles), len(mesh.tets))
+    return replace(mesh, capacitor_of_tet=conductor)
+
+
+#: The last few triangulations of the wired mesher, by their geometry and sizes: a design as
+#: wired and its plates alone conform to the same curves and are one triangulation (gmsh's
+#: fragmenting and meshing was 8 of the glove design's 30 s of readings, its elastic mesh 4).
+_TRIANGULATIONS: dict = {}
+_KEEP = 4
+
+
+def _triangulated(sheet: Polygon, parts: list, settings) -> tuple[np.ndarray, np.ndarray]:
+    """The sheet triangulated conforming to the polygons ``parts`` (gmsh's OpenCASCADE
+    fragments), ``edge_length_outline_mm`` on every inner curve graded to
+    ``edge_length_mm``: counter-clockwise triangles on the used points (read-only arrays,
+    shared by every caller with the same geometry and sizes)."""
+    h = hashlib.sha256(repr((settings.edge_length_outline_mm, settings.edge_length_mm,
+                             quality_grading_mm(settings))).encode())
+    for polygon in [sheet] + list(parts):
+        h.update(shapely.to_wkb(polygon))
+    digest = h.hexdigest()
+    if digest in _TRIANGULATIONS:
+        return _TRIANGULATIONS[digest]
     with gmsh_model("wired") as gmsh:
         try:
             occ = gmsh.model.occ
@@ -231,30 +277,12 @@ def net_mesh(sheet_outline: np.ndarray, bottom: list, top: list, settings, thick
     points, triangles = points[used], renumber[triangles]
     signed = TriMesh(points.copy(), triangles.copy(), np.full(len(triangles), -1)).areas()
     triangles[signed < 0] = triangles[signed < 0][:, [0, 2, 1]]
-    areas = np.abs(signed)
-    centroid = points[triangles].mean(axis=1)
-    label = {}
-    for layer, nets in (("bottom", bottom), ("top", top)):
-        label[layer] = np.full(len(triangles), -1, dtype=np.int64)
-        for i, net in enumerate(nets):
-            label[layer][shapely.contains_xy(net.buffer(1e-6), centroid[:, 0], centroid[:, 1])] = i
-    for layer, nets in (("bottom", bottom), ("top", top)):
-        area = np.bincount(label[layer][label[layer] >= 0], minlength=len(nets))
-        for i, net in enumerate(nets):
-            mesh_area = areas[label[layer] == i].sum()
-            if not abs(mesh_area - net.area) <= 1e-3 * net.area + 1e-3:
-                raise MeshError(f"the wired mesh covers {mesh_area:.6g} mm2 of {layer} conductor {i}, "
-                                f"whose outline holds {net.area:.6g} mm2 ({int(area[i])} triangles)")
-    mesh2d = TriMesh(points, triangles, np.where(label["bottom"] >= 0, label["bottom"], label["top"]),
-                     conductor_of_layer=np.column_stack([label["bottom"], label["top"]]))
-    mesh = extrude(mesh2d, thicknesses_mm, elements_per_layer, slabs=slabs)
-    layer = mesh.layer_of_tet
-    conductor = np.full(len(mesh.tets), -1, dtype=np.int32)
-    on_bottom, on_top = layer == BOTTOM_PLATE_LAYER, layer == TOP_PLATE_LAYER
-    conductor[on_bottom] = label["bottom"][mesh.triangle_of_tet[on_bottom]]
-    conductor[on_top] = label["top"][mesh.triangle_of_tet[on_top]]
-    log.info("wired mesh: %d triangles, %d tets", len(triangles), len(mesh.tets))
-    return replace(mesh, capacitor_of_tet=conductor)
+    points.setflags(write=False)
+    triangles.setflags(write=False)
+    while len(_TRIANGULATIONS) >= _KEEP:
+        _TRIANGULATIONS.pop(next(iter(_TRIANGULATIONS)))
+    _TRIANGULATIONS[digest] = points, triangles
+    return points, triangles
 
 
 def _resampled(xy: np.ndarray, plate_edges, plate_vertices, spacing: float) -> np.ndarray:

@@ -154,3 +154,15 @@ def test_each_conductive_layer_is_carbon_black_inside_its_own_nets_only(routed):
     assert np.all(mu[lead_only & (mesh.layer_of_tet == BOTTOM_PLATE_LAYER)] == carbon)
     assert np.all(mu[lead_only & (mesh.layer_of_tet == TOP_PLATE_LAYER)] == clear)
     assert (lead_only & (mesh.layer_of_tet == TOP_PLATE_LAYER)).any()
+
+
+def test_the_plates_alone_are_meshed_on_the_wired_designs_very_triangulation(routed):
+    """One gmsh run for both: the same curves give the same triangulation, shared (the
+    fragmenting and meshing was 8 of the glove design's 30 s of wired readings)."""
+    scene, outlines, routing, _ = routed
+    wiring = wiring_of(routing)
+    wired, alone = wired_mesh(scene, wiring), wired_mesh(scene, plates_only(outlines, meshed_like=wiring))
+    assert alone.mesh2d.points is wired.mesh2d.points and alone.mesh2d.triangles is wired.mesh2d.triangles
+    assert not np.array_equal(alone.capacitor_of_tet, wired.capacitor_of_tet)  # the labels differ
+    own = wired_mesh(scene, plates_only(outlines))  # other curves: another triangulation
+    assert len(own.mesh2d.points) != len(wired.mesh2d.points)
