@@ -49,7 +49,7 @@ def feasible_step(design: Design, q, p, alpha: float = 1.0, keep: float = 0.1) -
     excess over the minimum and every triangle of both 2D meshes above ``keep`` of its
     area: no overlap, no outline leaving the sheet, no inverted triangle."""
     deformer = design.deformer
-    barrier = design.objective.barrier
+    barrier = design.objective.separation
     v = alpha * deformer.displacement2d(p)
     alpha *= barrier.max_step(deformer.outlines(q), [v[chain] for chain in deformer.outline_vertices], keep)
     v = alpha * deformer.displacement2d(p)

@@ -44,11 +44,12 @@ vertex.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from mscap.design.history import HEAD, TAIL
 from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, design_scene, read_back_estimate
 from mscap.design.terms import Sum, Term, Weighted, soft_min
 from mscap.errors import GeometryError, MscapError
@@ -61,7 +62,8 @@ if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
 __all__ = ["soft_min", "Dissimilarity", "PlateAreaBarrier", "DISTANCES", "capacitance_term", "SeparationBarrier",
-           "LaplacianSmoothing", "Weighted", "Sum", "ObjectiveParts", "LayoutObjective", "layout_objective"]
+           "LaplacianSmoothing", "Weighted", "Sum", "INPUTS", "NamedTerm", "ObjectiveParts", "LayoutObjective",
+           "layout_objective"]
 
 
 @dataclass(frozen=True)
@@ -300,78 +302,133 @@ class LaplacianSmoothing(Term):
         return value, tuple(grads)
 
 
+#: What a term reads: the capacitances ``(n_poses, k)`` or the outlines.
+INPUTS = ("capacitance", "outlines")
+
+
+@dataclass(frozen=True)
+class NamedTerm:
+    """One term of J by name: J adds ``weight × term(input)``, ``of`` the term's input
+    (:data:`INPUTS`). The name is its history column (:mod:`mscap.design.history`)."""
+
+    name: str
+    term: Term
+    weight: float
+    of: str
+
+    def __post_init__(self):
+        if not (self.name.isidentifier() and self.name.isascii()) or self.name in HEAD + TAIL:
+            raise MscapError(f"an objective term's name must be an ASCII identifier and not a history column of "
+                             f"its own ({', '.join(HEAD + TAIL)}), got {self.name!r}")
+        if self.of not in INPUTS:
+            raise MscapError(f"objective term {self.name!r} reads {self.of!r}, not one of {', '.join(INPUTS)}")
+        if not np.isfinite(self.weight):
+            raise MscapError(f"objective term {self.name!r} has weight {self.weight!r}")
+
+    def weighted(self, value: float) -> float:
+        """``weight × value`` (0 for a zero weight, even where the term is infinite)."""
+        return 0.0 if self.weight == 0 else self.weight * value
+
+
 @dataclass(frozen=True)
 class ObjectiveParts:
-    """J and its unweighted parts at one design: ``d`` (pF², noise units or −mm),
-    ``barrier`` (separation + plate area) and ``smoothing`` (mm²)."""
+    """J and its terms, unweighted, by name (``d`` in pF², noise units or −mm; the
+    barriers; the smoothing in mm²)."""
 
     J: float
-    d: float
-    barrier: float
-    smoothing: float
+    terms: Mapping[str, float]
+
+    @property
+    def d(self) -> float:
+        return self.terms["d"]
 
 
 @dataclass(frozen=True)
 class LayoutObjective:
-    """The design objective — the one place J is composed:
+    """The design objective — the one place J is composed, from its terms by name:
 
-        J(C, outlines) = −d(C) + w_b (B(outlines) + B_area(outlines)) + w_s S(outlines)
+        J(C, outlines) = Σ_t w_t t(C or outlines)
 
-    ``distance`` is d (:func:`capacitance_term`), ``barrier`` the separation barrier B
-    (which also bounds the line search's step), ``area`` the plate-area barrier (``None``
-    without ``max_plate_area_mm2``), ``smoothing`` S."""
+    by default −d(C) + w_b B(outlines) [+ w_b B_area(outlines)] + w_s S(outlines)
+    (:func:`layout_objective`). A new term is its :class:`~mscap.design.terms.Term`, its
+    weight and its name: the evaluation, the history, the store and the progress lines
+    carry it by that name. ``separation`` is the separation barrier B, which also bounds
+    the line search's step."""
 
-    distance: Term
-    barrier: SeparationBarrier
-    smoothing: LaplacianSmoothing
-    area: PlateAreaBarrier | None
-    barrier_weight: float
-    smoothing_weight: float
+    terms: tuple[NamedTerm, ...]
+    separation: SeparationBarrier
+
+    def __post_init__(self):
+        names = [t.name for t in self.terms]
+        if len(set(names)) != len(names) or "d" not in names:
+            raise MscapError(f"an objective's terms need distinct names and a capacitance term 'd', got {names}")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(t.name for t in self.terms)
+
+    def _of(self, of: str) -> tuple[NamedTerm, ...]:
+        return tuple(t for t in self.terms if t.of == of)
+
+    @staticmethod
+    def _weighted(terms: tuple[NamedTerm, ...]) -> Term:
+        parts = [t.weight * t.term for t in terms]
+        return parts[0] if len(parts) == 1 else Sum(tuple(parts))
 
     @property
     def capacitance(self) -> Term:
-        """The capacitance part of J: −d."""
-        return -1.0 * self.distance
+        """The capacitance part of J (by default −d)."""
+        return self._weighted(self._of("capacitance"))
 
     @property
     def geometry(self) -> Term:
-        """The outline part of J: w_b (B + B_area) + w_s S."""
-        geometry = self.barrier_weight * self.barrier + self.smoothing_weight * self.smoothing
-        return geometry if self.area is None else geometry + self.barrier_weight * self.area
+        """The outline part of J (by default w_b (B + B_area) + w_s S)."""
+        return self._weighted(self._of("outlines"))
 
-    def outline_terms(self, outlines, check: bool = False) -> tuple[float, float]:
-        """The unweighted outline terms ``(B + B_area, S)``. With ``check``, raise
-        :class:`GeometryError` where a barrier is infinite (outlines closer than the
-        minimum gap, plates over the area limit): a design evaluates this before any
-        simulation."""
-        barrier = self.barrier.value(outlines)
-        if check and not np.isfinite(barrier):
-            raise GeometryError(f"the outlines at this design violate the minimum gap (barrier {barrier})")
-        area = 0.0 if self.area is None else self.area.value(outlines)
-        if check and not np.isfinite(area):
-            raise GeometryError("the outlines at this design reach [optimizer] max_plate_area_mm2")
-        return barrier + area, self.smoothing.value(outlines)
+    def outline_terms(self, outlines, check: bool = False) -> dict[str, float]:
+        """The outline terms, unweighted, by name. With ``check``, raise
+        :class:`GeometryError` where one is infinite (outlines closer than the minimum gap,
+        plates over the area limit): a design evaluates this before any simulation."""
+        values = {}
+        for t in self._of("outlines"):
+            values[t.name] = float(t.term.value(outlines))
+            if check and not np.isfinite(values[t.name]):
+                raise GeometryError(f"the outlines at this design make the objective's {t.name} term "
+                                    f"{values[t.name]} (outlines closer than the minimum gap, or plates over "
+                                    f"[optimizer] max_plate_area_mm2)")
+        return values
 
-    def parts(self, capacitance_pF: np.ndarray, outline_terms: tuple[float, float]) -> ObjectiveParts:
-        """J and its parts at capacitances ``(n_poses, k)`` and :meth:`outline_terms`."""
-        return self._parts(self.distance.value(capacitance_pF), outline_terms)
+    def parts(self, capacitance_pF: np.ndarray, outline_terms: Mapping[str, float]) -> ObjectiveParts:
+        """J and its terms at capacitances ``(n_poses, k)`` and :meth:`outline_terms`."""
+        values = {t.name: float(t.term.value(capacitance_pF)) for t in self._of("capacitance")}
+        return self._parts(values, outline_terms)
 
     def parts_and_gradient(self, capacitance_pF: np.ndarray,
-                           outline_terms: tuple[float, float]) -> tuple[ObjectiveParts, np.ndarray]:
-        """:meth:`parts` and ∂J/∂C ``(n_poses, k)`` from one evaluation of the capacitance term."""
-        minus_d, dJ_dC = self.capacitance.value_and_gradient(capacitance_pF)
-        return self._parts(-minus_d, outline_terms), dJ_dC
+                           outline_terms: Mapping[str, float]) -> tuple[ObjectiveParts, np.ndarray]:
+        """:meth:`parts` and ∂J/∂C ``(n_poses, k)`` from one evaluation of each capacitance term."""
+        values, dJ_dC = {}, None
+        for t in self._of("capacitance"):
+            v, g = t.term.value_and_gradient(capacitance_pF)
+            values[t.name] = float(v)
+            dJ_dC = t.weight * g if dJ_dC is None else dJ_dC + t.weight * g
+        return self._parts(values, outline_terms), dJ_dC
 
-    def _parts(self, d: float, outline_terms: tuple[float, float]) -> ObjectiveParts:
-        barrier, smoothing = outline_terms
-        J = -d + self.barrier_weight * barrier + self.smoothing_weight * smoothing
-        return ObjectiveParts(float(J), float(d), float(barrier), float(smoothing))
+    def _parts(self, capacitance_terms: Mapping[str, float], outline_terms: Mapping[str, float]) -> ObjectiveParts:
+        values = {**capacitance_terms, **outline_terms}
+        J = 0.0
+        for t in self.terms:
+            J = J + t.weighted(values[t.name])
+        return ObjectiveParts(float(J), {name: float(values[name]) for name in self.names})
+
+    def capacitance_value(self, terms: Mapping[str, float]) -> float:
+        """The capacitance part of J from the terms' values ``terms``."""
+        return float(sum(t.weighted(terms[t.name]) for t in self._of("capacitance")))
 
     def value(self, capacitance_pF: np.ndarray, outlines) -> float:
         return self.parts(capacitance_pF, self.outline_terms(outlines)).J
 
     def max_step(self, outlines, directions, keep: float = 0.1) -> float:
-        return self.barrier.max_step(outlines, directions, keep)
+        return self.separation.max_step(outlines, directions, keep)
 
 
 def capacitance_term(scene: Scene) -> Term:
@@ -442,11 +499,14 @@ class PlateAreaBarrier(Term):
 def layout_objective(scene: Scene, dhat_mm: float | None = None) -> LayoutObjective:
     """J = −d + w_b (B + B_area) + w_s S from a scene's ``[optimizer]`` (``distance``,
     ``tau_pF2`` / ``tau_noise`` / ``tau_mm``, ``barrier_weight``, ``smoothing_weight``,
-    ``max_plate_area_mm2``, ``min_feature_mm``) and ``[capacitors] min_gap_mm``."""
+    ``max_plate_area_mm2``, ``min_feature_mm``) and ``[capacitors] min_gap_mm``; the terms
+    named ``d``, ``barrier``, ``area`` (with an area limit) and ``smoothing``."""
     settings = scene.optimizer
-    area = PlateAreaBarrier(settings.max_plate_area_mm2) if settings.max_plate_area_mm2 > 0 else None
-    return LayoutObjective(distance=capacitance_term(scene),
-                           barrier=SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm,
-                                                     feature_mm=settings.min_feature_mm),
-                           smoothing=LaplacianSmoothing(), area=area, barrier_weight=settings.barrier_weight,
-                           smoothing_weight=settings.smoothing_weight)
+    separation = SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm, feature_mm=settings.min_feature_mm)
+    terms = [NamedTerm("d", capacitance_term(scene), -1.0, "capacitance"),
+             NamedTerm("barrier", separation, settings.barrier_weight, "outlines")]
+    if settings.max_plate_area_mm2 > 0:
+        terms.append(NamedTerm("area", PlateAreaBarrier(settings.max_plate_area_mm2), settings.barrier_weight,
+                               "outlines"))
+    terms.append(NamedTerm("smoothing", LaplacianSmoothing(), settings.smoothing_weight, "outlines"))
+    return LayoutObjective(tuple(terms), separation)

@@ -181,13 +181,13 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
 
     def record(event, step=0.0, evaluations=1):  # evaluations of this event
         angle = min_angle(design, e.q)[0]
-        r = Record(iteration, level, e.J, e.d, e.barrier, e.smoothing, float(np.linalg.norm(g)), step,
+        r = Record(iteration, level, e.J, dict(e.terms), float(np.linalg.norm(g)), step,
                    e.min_l1_pF, event, evaluations, int(sum(e.newton_iterations)), angle,
                    min_gap_mm(design.deformer.outlines(e.q), design.scene.sheet_outline_mm),
                    time.perf_counter() - started, size_ratio(design, e.q), e.error_J, e.margin_error_pF)
         history.append(r)
-        say(f"it {iteration:3d} L{level} {event:<9} J {e.J:+.6e} d {e.d:.5g} B {e.barrier:.3g} "
-            f"S {e.smoothing:.3g} |g| {r.grad_norm:.3e} step {step:.3g} mm minL1 {e.min_l1_pF:.4g} pF "
+        terms = " ".join(f"{name} {value:.4g}" for name, value in e.terms.items())
+        say(f"it {iteration:3d} L{level} {event:<9} J {e.J:+.6e} {terms} |g| {r.grad_norm:.3e} step {step:.3g} mm minL1 {e.min_l1_pF:.4g} pF "
             f"evals {evaluations} newton {r.newton_iterations} angle {angle:.1f} gap {r.min_gap_mm:.3g} mm "
             f"mem {len(memory.pairs)} "
             f"t {r.time_s:.1f} s")
@@ -349,8 +349,9 @@ def _line_search(design: Design, e: Evaluation, g: np.ndarray, p: np.ndarray, al
     slope = float(np.vdot(g, p))
     if screen:
         geometry = design.objective.geometry
-        before = e.J + e.d  # J = −d + the outline terms
-        # g = −∇d + ∇(outline terms): d's first-order gain per unit α is ∇(outline terms)·p − g·p.
+        before = e.J - design.objective.capacitance_value(e.terms)  # the outline terms' part of J
+        # g = ∇(capacitance terms) + ∇(outline terms): the capacitance terms' first-order gain per
+        # unit α is ∇(outline terms)·p − g·p.
         gain = max(float(np.vdot(design.outline_gradient(e.q), p)) - slope, 0.0)
     inverted = evaluations = unresolved = 0
     for trial in range(1, max_trials + 1):

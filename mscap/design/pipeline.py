@@ -37,6 +37,7 @@ import logging
 import time
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from typing import Mapping
 
 import numpy as np
 
@@ -63,9 +64,11 @@ log = logging.getLogger(__name__)
 class Evaluation:
     """J and its parts at one design ``q``.
 
-    ``J = −d + w_b · barrier + w_s · smoothing`` (+ w_b · the plate-area barrier); ``d``
-    (:func:`mscap.design.objective.capacitance_term`: pF², noise units, or −mm for the read-back
-    bound), ``barrier`` and ``smoothing`` (mm²) unweighted; ``capacitance_pF``
+    ``terms``: the objective's terms, unweighted, by name
+    (:class:`mscap.design.objective.LayoutObjective`; by default ``J = −d + w_b · barrier +
+    w_s · smoothing`` (+ w_b · ``area``), ``d`` (:func:`mscap.design.objective.capacitance_term`:
+    pF², noise units, or −mm for the read-back bound), ``barrier`` and ``smoothing`` (mm²));
+    ``capacitance_pF``
     ``(n_poses, k)`` over the design poses; ``sim`` holds the moved meshes, the fields and
     each pose's equilibrium (for :meth:`Design.gradient`, which factorises each pose's
     Hessian there and keeps it, until :meth:`release`; ``None`` once :meth:`detached`);
@@ -77,9 +80,7 @@ class Evaluation:
 
     q: np.ndarray
     J: float
-    d: float
-    barrier: float
-    smoothing: float
+    terms: Mapping[str, float]
     capacitance_pF: np.ndarray
     sim: Simulation | None
     newton_iterations: tuple[int, ...]
@@ -95,6 +96,11 @@ class Evaluation:
     @property
     def min_l1_pF(self) -> float:
         return min_pairwise_l1(self.capacitance_pF)
+
+    @property
+    def d(self) -> float:
+        """The capacitance term d (the term J maximises; the multi-start's score reads it)."""
+        return self.terms["d"]
 
     def release(self, keep_elastic: bool = False) -> None:
         """Destroy the kept factorisations (PETSc objects) and drop the electrostatic
@@ -251,10 +257,10 @@ class Design:
         capacitance = plates_pF if offset is None else plates_pF + offset
         parts, dJ_dC = self.objective.parts_and_gradient(capacitance, outline_terms)
         if not np.isfinite(parts.J):
-            raise DesignError(f"J = {parts.J} is not finite (d = {parts.d}, barrier = {parts.barrier}, "
-                              f"smoothing = {parts.smoothing})")
+            raise DesignError(f"J = {parts.J} is not finite ("
+                              + ", ".join(f"{name} = {v}" for name, v in parts.terms.items()) + ")")
         error_J, margin_error = self.errors.estimate(dJ_dC, capacitance, outlines)
-        return Evaluation(q, parts.J, parts.d, parts.barrier, parts.smoothing, capacitance, sim, iterations,
+        return Evaluation(q, parts.J, parts.terms, capacitance, sim, iterations,
                           time.perf_counter() - started, error_J=error_J, margin_error_pF=margin_error, dJ_dC=dJ_dC,
                           offset_pF=offset)
 
@@ -349,11 +355,14 @@ def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:
 
 
 def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None = None, count=None,
-                 method: str | None = None, base: Simulation | None = None) -> Design:
+                 method: str | None = None, base: Simulation | None = None,
+                 objective: LayoutObjective | None = None) -> Design:
     """Mesh ``scene`` (with ``layout`` in place of its own, if given) and build the design.
 
     Controls: ``count`` per outline, else ``control_spacing_mm`` (default: the scene's
-    ``[optimizer] control_spacing_mm``); ``method``: skinning (default the scene's).
+    ``[optimizer] control_spacing_mm``); ``method``: skinning (default the scene's);
+    ``objective``: J (default the scene's, :func:`~mscap.design.objective.layout_objective`;
+    a remesh keeps the design's own).
     """
     if layout is not None:
         scene = replace(scene, layout=layout)
@@ -372,4 +381,4 @@ def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None 
     weights = None
     if base.elastic is not None and base.transfer is not None:
         weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
-    return Design(scene, base, deformer, weights, layout_objective(scene))
+    return Design(scene, base, deformer, weights, objective or layout_objective(scene))

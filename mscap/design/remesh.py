@@ -89,7 +89,8 @@ def remesh(design: Design, evaluation: Evaluation) -> tuple[Design, list]:
     spacing = edge * max(1, int(np.floor(half / edge + 1e-9)))
     layout = resampled_layout(design.deformer.outlines(evaluation.q), spacing, edge, scene)
     counts = np.bincount(design.deformer.control_outline, minlength=layout.k)
-    new = replace(build_design(scene, layout=layout, count=counts), wiring=design.wiring)  # re-routed by the optimiser
+    new = replace(build_design(scene, layout=layout, count=counts, objective=design.objective),
+                  wiring=design.wiring)  # re-routed by the optimiser
     warm = [None] * len(scene.poses)
     old = evaluation.sim.elastic
     if old is not None and new.base.elastic is not None:

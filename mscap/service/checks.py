@@ -71,7 +71,7 @@ def _shape_problem(g: h5py.Group, k: int, status: str) -> str | None:
             return f"dataset {name!r} has shape {g[name].shape}, not (n_poses, {k})"
     if status != "failed" and g["final_capacitance_pF"].shape[0] != g["poses"].shape[0]:
         return f"{g['final_capacitance_pF'].shape[0]} rows of final_capacitance_pF for {g['poses'].shape[0]} poses"
-    lengths = {g["history"][n].shape for n in HISTORY_COLUMNS if n in g["history"]}
+    lengths = {g["history"][n].shape for n in g["history"]}
     if len(lengths) > 1 or any(len(shape) != 1 for shape in lengths):
         return f"history columns of different shapes {sorted(lengths)}"
     return None

@@ -145,7 +145,8 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
                 + [[name, stage] + [f"{c:.6f}" for c in row]
                    for stage, e in (("initial", result.initial), ("final", result.evaluation))
                    for name, row in zip(poses, e.capacitance_pF)])
-    replace_csv(out / "history.csv", [list(HISTORY_FIELDS)] + [r.row() for r in result.history])
+    fields = result.history[0].fields if result.history else HISTORY_FIELDS
+    replace_csv(out / "history.csv", [list(fields)] + [r.row() for r in result.history])
     summary = {"scene": scene.path, "k": initial.k, "seed": seed, "init": init,
                "iterations": result.iterations, "reason": result.reason, "time_s": result.time_s,
                "initial_min_l1_pF": result.initial.min_l1_pF, "final_min_l1_pF": result.evaluation.min_l1_pF,

@@ -117,7 +117,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         def checkpoint(row) -> bool:
             rung = rule.enabled and rule.is_rung(row.iteration)
             verdict = ask(Progress(config.id, config.k, row.iteration, float(row.min_l1_pF),
-                                   float(score(kind, row.J, row.d, row.min_l1_pF)), rung, kind))
+                                   float(score(kind, row.J, row.terms["d"], row.min_l1_pF)), rung, kind))
             if not rung:
                 return True
             verdicts.append(verdict)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mscap.scene.calibration import NoiseModel
-from mscap.service.store import HISTORY_COLUMNS, finished_ids
+from mscap.service.store import finished_ids
 
 __all__ = ["error_estimates", "margin_resolution", "resolution_text", "summary_json", "table", "runs_table",
            "history_text", "silent_plates", "silent_plates_text", "Reading", "reading_plates", "reading_text",
@@ -390,7 +390,7 @@ def history_text(record) -> str:
                      f"(check took {record.error_estimate_wall_s:.1f} s)")
     elif record.status == "ok":
         lines.append("no finer-mesh check (a finished run of its k was better, or the check failed or was off)")
-    names = list(HISTORY_COLUMNS)
+    names = list(record.history)
     lines.append("\t".join(names))
     columns = [record.history[n] for n in names]
     for row in zip(*columns):

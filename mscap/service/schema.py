@@ -10,11 +10,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mscap.design.history import min_pairwise_l1, pairwise_l1, HISTORY_FIELDS
+from mscap.design.history import DEFAULT_TERMS, HEAD, HISTORY_FIELDS, TAIL, min_pairwise_l1, pairwise_l1
 from mscap.service.accuracy import relative_difference
 from mscap.service.selection import RunSummary, run_id
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "TEMP_PREFIX", "ROOT_ATTRS", "RUN_ATTRS", "RUN_DATASETS", "HISTORY_COLUMNS", "OPTIONAL_HISTORY",
+           "history_kind", "stored_terms",
            "SELECTION_ITEMS", "schema_markdown", "RunRecord", "record_from_result", "history_columns", "failed_record",
            "record_bytes",
            "run_summary"]
@@ -85,16 +86,35 @@ RUN_DATASETS = {
     "final_capacitance_pF": ("float64 (n_poses, k)", "the same for the optimised layout (0 rows if failed)"),
     "finer_capacitance_pF": ("float64 (n_poses, k)", "the optimised layout on the finer mesh (0 rows if not checked)"),
     "history/<column>": ("one 1-D dataset per column", "the optimiser history, one row per event (below); "
-                         "a failed run's up to the failure"),
+                         "a failed run's up to the failure. Between J and grad_norm, one float64 column per "
+                         "term of the run's objective, by the term's name (d, barrier, smoothing by default; "
+                         "area with max_plate_area_mm2; a term of the user's own, its name)"),
 }
 
-#: History columns added after schema 3's files were first written: a file without them
-#: reads them as NaN (and is not damaged for that).
-OPTIONAL_HISTORY = ("size_ratio", "error_J", "margin_error_pF")
-#: History columns (``mscap.design.optimizer.HISTORY_FIELDS``) and their HDF5 types.
+#: History columns a run may lack, read as NaN (and not damaged for that): those added after
+#: the first files were written, and the default objective's outline terms (an objective
+#: without one has no column of it). The capacitance term ``d`` is always there.
+OPTIONAL_HISTORY = ("size_ratio", "error_J", "margin_error_pF") + DEFAULT_TERMS[1:]
+#: History columns of the default objective (``mscap.design.history.HISTORY_FIELDS``) and
+#: their HDF5 types. Between ``J`` and ``grad_norm`` stand the objective's terms by name
+#: (``d``, ``barrier``, ``smoothing`` by default; ``area`` with an area limit; a new term's
+#: own name): every column not of ``HEAD``/``TAIL`` is a term, float64.
 HISTORY_COLUMNS = {name: ("str" if name == "event" else
                           "int64" if name in ("iteration", "level", "evaluations", "newton_iterations")
                           else "float64") for name in HISTORY_FIELDS}
+
+
+def history_kind(name: str) -> str:
+    """The HDF5 type of history column ``name`` (a term's: float64)."""
+    return HISTORY_COLUMNS.get(name, "float64")
+
+
+def stored_terms(names) -> tuple[str, ...]:
+    """The objective terms among history column ``names``, in history order: the default
+    objective's first, in their order, then the others sorted (HDF5 lists a group's
+    members sorted)."""
+    terms = [n for n in names if n not in HEAD + TAIL]
+    return tuple(n for n in DEFAULT_TERMS if n in terms) + tuple(sorted(n for n in terms if n not in DEFAULT_TERMS))
 
 #: Items of ``/selection`` (rewritten after every run): datasets are per k, ascending.
 SELECTION_ITEMS = {
@@ -272,11 +292,12 @@ def record_from_result(k: int, seed: int, init: str, initial_layout, result, pos
 
 
 def history_columns(records) -> dict[str, np.ndarray]:
-    """The stored history (one 1-D array per column of ``HISTORY_COLUMNS``) of the
-    optimiser's :class:`~mscap.design.history.Record` rows."""
-    rows = [r.row() for r in records]
-    return {name: np.array([row[i] for row in rows], dtype=object if kind == "str" else kind)
-            for i, (name, kind) in enumerate(HISTORY_COLUMNS.items())}
+    """The stored history (one 1-D array per column: ``HISTORY_COLUMNS``'s, with the
+    objective's own terms in place of the default's) of the optimiser's
+    :class:`~mscap.design.history.Record` rows."""
+    names = records[0].fields if len(records) else HISTORY_FIELDS
+    return {name: np.array([r.value(name) for r in records], dtype=object if history_kind(name) == "str"
+                           else history_kind(name)) for name in names}
 
 
 def failed_record(k: int, seed: int, init: str, error: str, wall_s: float, rank: int = 0,

@@ -29,9 +29,11 @@ from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
 from mscap.service.checks import check_store, damaged_runs, one_line, run_problem
 from mscap.outfile import ResultsFile, WriteLock, check_output_path, room_text
-from mscap.service.schema import (CALIBRATION_ITEMS, FORMAT, HISTORY_COLUMNS, ROOT_ATTRS, RUN_ATTRS, RUN_DATASETS,
-                                  SCHEMA_VERSION, SELECTION_ITEMS, TEMP_PREFIX, RunRecord, failed_record, record_bytes,
-                                  record_from_result, run_summary, schema_markdown)
+from mscap.design.history import DEFAULT_TERMS, history_fields
+from mscap.service.schema import (CALIBRATION_ITEMS, FORMAT, HISTORY_COLUMNS, OPTIONAL_HISTORY, ROOT_ATTRS, RUN_ATTRS,
+                                  RUN_DATASETS, SCHEMA_VERSION, SELECTION_ITEMS, TEMP_PREFIX, RunRecord, failed_record,
+                                  history_kind, record_bytes, record_from_result, run_summary, schema_markdown,
+                                  stored_terms)
 from mscap.service.selection import SELECTION_RULE_BOUND, SELECTION_RULE_CALIBRATED, CalibratedDesign, RunSummary, \
     Selection, select, SELECTION_RULE
 
@@ -303,8 +305,9 @@ def write_run(store: ResultsFile, record: RunRecord) -> str:
         for name in ("initial_capacitance_pF", "final_capacitance_pF", "finer_capacitance_pF"):
             g.create_dataset(name, data=np.asarray(getattr(record, name), dtype=float).reshape(-1, k))
         h = g.create_group("history")
-        for name, kind in HISTORY_COLUMNS.items():
-            column = record.history.get(name, [])
+        required = [n for n in HISTORY_COLUMNS if n not in OPTIONAL_HISTORY]
+        for name in dict.fromkeys([*required, *record.history]):
+            column, kind = record.history.get(name, []), history_kind(name)
             if kind == "str":
                 h.create_dataset(name, data=np.array([str(x) for x in column], dtype=object), dtype=_STR)
             else:
@@ -332,9 +335,11 @@ def read_run(store: h5py.File, rid: str) -> RunRecord:
 def _read_run(g: h5py.Group) -> RunRecord:
     a = g.attrs
     rows = g["history"]["iteration"].shape[0]
-    history = {name: (g["history"][name].asstr()[()].astype(object) if kind == "str"
-                      else g["history"][name][()] if name in g["history"] else np.full(rows, np.nan))
-               for name, kind in HISTORY_COLUMNS.items()}  # OPTIONAL_HISTORY: NaN in older files
+    stored = g["history"]
+    terms = stored_terms(n for n in stored if n.isidentifier())
+    history = {name: (stored[name].asstr()[()].astype(object) if history_kind(name) == "str"
+                      else stored[name][()] if name in stored else np.full(rows, np.nan))
+               for name in history_fields(terms or DEFAULT_TERMS)}  # OPTIONAL_HISTORY: NaN if absent
     return RunRecord(k=int(a["k"]), seed=int(a["seed"]), init=str(a["init"]), status=str(a["status"]),
                      error=str(a["error"]), reason=str(a["reason"]), wall_s=float(a["wall_s"]),
                      iterations=int(a["iterations"]), rank=int(a["rank"]),

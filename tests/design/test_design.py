@@ -14,6 +14,7 @@ import pytest
 
 from mscap.design.history import min_pairwise_l1
 from mscap.design.pipeline import build_design
+from mscap.design.terms import Term
 from mscap.scene import load_scene
 from mscap.testing import taylor_test
 from tests.conftest import to_toml
@@ -237,3 +238,69 @@ def test_a_warm_start_on_the_previous_factorisation_reaches_the_same_equilibria(
         assert all(r.state.stale_iterations == 0 for r in plain.sim.poses if r.state is not None)
     for x in (stale, plain):
         x.release()
+
+
+class Perimeter(Term):
+    """The outlines' total length (mm): a term the objective does not ship."""
+
+    def value_and_gradient(self, outlines):
+        value, grads = 0.0, []
+        for o in outlines:
+            o = np.asarray(o, dtype=float)
+            edge = np.roll(o, -1, axis=0) - o
+            length = np.linalg.norm(edge, axis=1)
+            unit = edge / length[:, None]
+            value += float(length.sum())
+            grads.append(np.roll(unit, 1, axis=0) - unit)
+        return value, tuple(grads)
+
+
+class MeanReading(Term):
+    """The mean capacitance (pF) over poses and capacitors."""
+
+    def value_and_gradient(self, c):
+        c = np.asarray(c, dtype=float)
+        return float(c.mean()), np.full(c.shape, 1.0 / c.size)
+
+
+def test_a_new_term_is_its_class_and_its_weight(tmp_path_factory, tmp_path):
+    """Two terms the objective does not ship, added by name and weight only: J, its
+    gradient (Taylor), the optimiser's history, a remesh, the store and ``inspect --run``
+    all carry them."""
+    from mscap.design.objective import NamedTerm
+    from mscap.design.optimizer import optimize
+    from mscap.design.remesh import remesh
+    from mscap.service.report import history_text
+    from mscap.service.schema import record_from_result
+    from mscap.service.store import create_store, read_run, write_run
+
+    scene = load(stretch(), tmp_path_factory, "new_term")
+    plain = build_design(scene)
+    objective = dataclasses.replace(plain.objective, terms=plain.objective.terms + (
+        NamedTerm("perimeter", Perimeter(), 0.01, "outlines"), NamedTerm("mean_pF", MeanReading(), -0.5, "capacitance")))
+    d = dataclasses.replace(plain, objective=objective)
+    rng = np.random.default_rng(7)
+    q0 = 0.05 * rng.uniform(-1, 1, (d.n_controls, 2))
+    before, e = plain.evaluate(q0), d.evaluate(q0)
+    assert list(e.terms) == ["d", "barrier", "smoothing", "perimeter", "mean_pF"]
+    assert e.terms["perimeter"] == pytest.approx(Perimeter().value(d.deformer.outlines(q0)), rel=1e-14)
+    assert e.terms["mean_pF"] == pytest.approx(e.capacitance_pF.mean(), rel=1e-14)
+    assert e.J == pytest.approx(before.J + 0.01 * e.terms["perimeter"] - 0.5 * e.terms["mean_pF"], rel=1e-12)
+    grad = d.gradient(e)
+    delta = rng.uniform(-1, 1, grad.shape)
+    taylor = taylor_test(lambda q: d.evaluate(q, warm=e).J, q0, delta, grad, value=e.J, h0=0.02, halvings=3)
+    np.testing.assert_allclose(taylor.rates, 2.0, atol=0.2, err_msg=str(taylor))
+    with pytest.raises(Exception, match="history column"):
+        NamedTerm("J", Perimeter(), 1.0, "outlines")
+    assert remesh(d, e)[0].objective is objective  # a remesh keeps the design's J
+
+    result = optimize(d, max_iterations=2, cascade_levels=0)
+    assert all(list(r.terms) == list(e.terms) for r in result.history)
+    assert result.history[0].fields[3:8] == ("d", "barrier", "smoothing", "perimeter", "mean_pF")
+    record = record_from_result(len(scene.layout.outlines), 0, "scene", scene.layout, result, scene.poses, 1.0)
+    with create_store(tmp_path / "r.h5", scene.source, scene.sha256, scene.name, str(scene.path), 1) as store:
+        stored = read_run(store, write_run(store, record))
+    np.testing.assert_array_equal(stored.history["perimeter"], [r.terms["perimeter"] for r in result.history])
+    np.testing.assert_array_equal(stored.history["mean_pF"], [r.terms["mean_pF"] for r in result.history])
+    header = [line for line in history_text(stored).splitlines() if line.startswith("iteration")][0]
+    assert header.split("\t")[3:8] == ["d", "barrier", "smoothing", "mean_pF", "perimeter"]

@@ -329,9 +329,9 @@ def test_weighted_sum_from_the_scene(small_scene_dict, write_scene):
 def test_the_feature_size_comes_from_the_scene(small_scene_dict, write_scene):
     from mscap.errors import SceneError
 
-    assert layout_objective(load_scene(write_scene(small_scene_dict))).barrier.feature_mm == 0
+    assert layout_objective(load_scene(write_scene(small_scene_dict))).separation.feature_mm == 0
     small_scene_dict["optimizer"] = {"min_feature_mm": 0.75}
-    assert layout_objective(load_scene(write_scene(small_scene_dict))).barrier.feature_mm == 0.75
+    assert layout_objective(load_scene(write_scene(small_scene_dict))).separation.feature_mm == 0.75
     small_scene_dict["optimizer"] = {"min_feature_mm": -1.0}
     with pytest.raises(SceneError, match=r"optimizer\.min_feature_mm: must be >= 0, got -1.0"):
         load_scene(write_scene(small_scene_dict))

@@ -102,7 +102,6 @@ def test_a_remesh_resamples_an_outline_finer_where_its_chords_cross():
     from types import SimpleNamespace
 
     from mscap.design.remesh import resampled_layout
-    from mscap.geometry.layout import Layout
 
     slotted, square = slotted_plate(), geometry.square((40.0, 0.0), 8.0)
     assert not geometry.self_intersections(slotted)
@@ -212,7 +211,8 @@ def test_screening_skips_the_trials_the_outline_terms_reject(monkeypatch):
             return 10 * float(outlines) ** 2
 
     class Line:
-        objective = dataclasses.make_dataclass("O", [("geometry", object)])(Geometry())
+        objective = dataclasses.make_dataclass("O", [("geometry", object)], namespace={
+            "capacitance_value": lambda self, terms: -terms["d"]})(Geometry())  # J = −d + G
         deformer = dataclasses.make_dataclass("D", [], namespace={"outlines": lambda self, q: q[0, 0]})()
 
         def __init__(self):
@@ -227,7 +227,8 @@ def test_screening_skips_the_trials_the_outline_terms_reject(monkeypatch):
             return dataclasses.make_dataclass("E", [("J", float), ("q", object)], namespace={
                 "release": lambda self: None})(1 - 2 * alpha + 10 * alpha ** 2, q)
 
-    start = dataclasses.make_dataclass("E", [("J", float), ("d", float), ("q", object)])(1.0, -1.0, np.zeros((1, 2)))
+    start = dataclasses.make_dataclass("E", [("J", float), ("terms", dict), ("q", object)])(1.0, {"d": -1.0},
+                                                                                           np.zeros((1, 2)))
     g, p = np.array([[-2.0, 0.0]]), np.array([[1.0, 0.0]])
     plain, screened = Line(), Line()
     without = _line_search(plain, start, g, p, 1.0, screen=False)

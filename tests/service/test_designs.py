@@ -30,8 +30,8 @@ def scene(small_scene_dict, write_scene):
 def optimize_result(scene):
     """An ``OptimizeResult``-shaped object: the scene's layout moved by 0.25 mm."""
     after = Layout(tuple(o + [0.25, 0.0] for o in scene.layout.outlines))
-    rows = [Record(0, 0, -1.0, 1.0, 0.1, 0.2, 3.0, 0.0, 1.0, "start", 1, 5, 30.0, 1.0, 0.5),
-            Record(1, 0, -2.0, 2.0, 0.1, 0.2, 1.0, 0.3, 1.4, "remesh", 2, 6, 29.0, 0.9, 1.5)]
+    rows = [Record(0, 0, -1.0, {"d": 1.0, "barrier": 0.1, "smoothing": 0.2}, 3.0, 0.0, 1.0, "start", 1, 5, 30.0, 1.0, 0.5),
+            Record(1, 0, -2.0, {"d": 2.0, "barrier": 0.1, "smoothing": 0.2}, 1.0, 0.3, 1.4, "remesh", 2, 6, 29.0, 0.9, 1.5)]
     caps = np.array([[1.0, 2.0], [1.5, 2.5], [3.0, 1.0]]) / 3
     return SimpleNamespace(layout=after, history=tuple(rows), iterations=1, reason="converged", time_s=2.5, reroutes=(),
                            initial=SimpleNamespace(capacitance_pF=caps * 0.5, min_l1_pF=0.25, J=-1.0),

@@ -150,8 +150,8 @@ def test_record_from_result(scene):
 
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     before, after = Layout((square, square + 2)), Layout((square * 1.5, square + 3))
-    rows = [Record(0, 0, -1.0, 1.0, 0.1, 0.2, 3.0, 0.0, 1.0, "start", 1, 5, 30.0, 1.0, 0.5),
-            Record(1, 0, -2.0, 2.0, 0.1, 0.2, 1.0, 0.3, 1.4, "converged", 2, 6, 29.0, 0.9, 1.5)]
+    rows = [Record(0, 0, -1.0, {"d": 1.0, "barrier": 0.1, "smoothing": 0.2}, 3.0, 0.0, 1.0, "start", 1, 5, 30.0, 1.0, 0.5),
+            Record(1, 0, -2.0, {"d": 2.0, "barrier": 0.1, "smoothing": 0.2}, 1.0, 0.3, 1.4, "converged", 2, 6, 29.0, 0.9, 1.5)]
     caps = np.array([[1.0, 2.0], [1.5, 2.5], [3.0, 1.0]])
     result = SimpleNamespace(history=tuple(rows), iterations=1, reason="converged", layout=after,
                              initial=SimpleNamespace(capacitance_pF=caps * 0.5),
