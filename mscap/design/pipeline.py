@@ -50,12 +50,14 @@ from mscap.errors import DesignError, FabricationError
 from mscap.fem.adjoint import moved, pose_rest_gradient
 from mscap.fem.elastic.problem import carried_displacement
 from mscap.fem.petsc import LinearSolver, Operator
-from mscap.fem.simulate import Simulation, elastic_setup, factorised, simulate, solve_poses
+from mscap.fem import electrostatic
+from mscap.fem.simulate import Simulation, elastic_setup, element_of, factorised, solve_poses
 from mscap.fem.transfer import p1_matrix
+from mscap.mesh.layered import mesh_elastic, mesh_scene
 from mscap.scene import Scene
 from mscap.scene.loader import check_designable
 
-__all__ = ["DesignError", "Design", "Evaluation", "build_design"]
+__all__ = ["DesignError", "Design", "Evaluation", "build_design", "rest_problems"]
 
 log = logging.getLogger(__name__)
 
@@ -134,13 +136,13 @@ class Evaluation:
         self.release(keep_elastic)
         return replace(self, sim=None, released=True)
 
-    def factorise(self, i: int, scene: Scene) -> None:
-        """Factorise pose ``i``'s exact Hessian at its equilibrium, unless done
+    def factorise(self, i: int, pose, settings) -> None:
+        """Factorise pose ``i``'s (``pose``'s, Newton ``settings``) exact Hessian at its equilibrium, unless done
         (:func:`~mscap.fem.simulate.factorised`): the adjoint's, kept until :meth:`release`."""
         result = self.sim.poses[i]
         if result.state is None or result.state.operator is not None:
             return
-        state = factorised(self.sim.elastic, scene.poses[i], scene.elastic, result.state)
+        state = factorised(self.sim.elastic, pose, settings, result.state)
         poses = list(self.sim.poses)
         poses[i] = replace(result, state=state)
         object.__setattr__(self, "sim", replace(self.sim, poses=tuple(poses)))
@@ -238,7 +240,7 @@ class Design:
         solver, operator = self._solvers()
         # No factorisation is kept here: the gradient factorises each pose's Hessian when asked
         # (Evaluation.factorise), so a rejected trial costs none and holds no memory.
-        results = solve_poses(sim, self.scene, solver, operator, starts, stale=stale)
+        results = solve_poses(sim, self.scene.poses, self.scene.elastic, solver, operator, starts, stale=stale)
         for result in results:
             if not np.isfinite(result.capacitance_pF).all():
                 raise DesignError(f"pose {result.name!r}: capacitances {result.capacitance_pF} are not finite")
@@ -298,9 +300,9 @@ class Design:
         # Capacitance part: one elastic adjoint per pose, to both rest meshes.
         g_fine = np.zeros_like(e.sim.mesh.points)
         g_elastic = None if e.sim.elastic is None else np.zeros((e.sim.elastic.n_vertices, 3))
-        for i in range(len(self.scene.poses)):
-            e.factorise(i, self.scene)
-            part = pose_rest_gradient(e.sim, i, dJ_dC[i], self.scene)
+        for i, pose in enumerate(self.scene.poses):
+            e.factorise(i, pose, self.scene.elastic)
+            part = pose_rest_gradient(e.sim, i, dJ_dC[i], pose)
             g_fine += part.fine
             if g_elastic is not None:
                 g_elastic += part.elastic
@@ -368,13 +370,13 @@ def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None 
         scene = replace(scene, layout=layout)
     if method is not None:
         scene = replace(scene, optimizer=replace(scene.optimizer, skinning=method))
+    # The stages in floor order (docs/architecture.md): the scene's design poses and
+    # checks, the meshes, the rest problems on them, then the design's own objects.
     scene = design_scene(scene)
     check_designable(scene)
-    settings = scene.optimizer
     if base is None:
-        base = simulate(replace(scene, poses=()), mesh=None)
-        problem, transfer = elastic_setup(scene, base.mesh)
-        base = replace(base, elastic=problem, transfer=transfer)
+        base = rest_problems(scene)
+    settings = scene.optimizer
     spacing = None if count is not None else (control_spacing_mm or settings.control_spacing_mm)
     deformer = build_deformer(base.mesh.mesh2d, scene.layout, spacing_mm=spacing, count=count,
                               method=method or settings.skinning)
@@ -382,3 +384,15 @@ def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None 
     if base.elastic is not None and base.transfer is not None:
         weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
     return Design(scene, base, deformer, weights, objective or layout_objective(scene))
+
+
+def rest_problems(scene: Scene) -> Simulation:
+    """The rest meshes and problems of ``scene`` (a :class:`Simulation` without poses): the
+    electrostatic mesh and the elastic one its poses need (the mesh floor), then the
+    electrostatic and elastic problems and the transfer between them (the fem floor)."""
+    mesh = mesh_scene(scene)
+    electrostatic.check_plates(mesh)  # a bad layout fails before the elastic mesh is made
+    elastic_mesh = None if all(p.kind == "free" for p in scene.poses) else mesh_elastic(scene, mesh)
+    problem, transfer = elastic_setup(scene, mesh, elastic_mesh=elastic_mesh)
+    electro = electrostatic.build_problem(mesh, scene.layers, *element_of(scene.mesh))
+    return Simulation(scene.name, mesh, problem, electro, (), {}, transfer)

@@ -122,7 +122,8 @@ def sensitivity_map(scene: Scene) -> SensitivityMap:
         raise GeometryError(f"{scene.path}: every design pose is free; a sensitivity start has nothing to read")
     operator = Operator(problem)
     try:
-        states, _ = equilibria(Simulation(scene.name, mesh, problem, None, (), {}), design, operator)
+        states, _ = equilibria(Simulation(scene.name, mesh, problem, None, (), {}), design.poses, design.elastic,
+                               operator)
     finally:
         operator.destroy()
     density = np.array([np.ones(len(problem.mesh.mesh2d.triangles)) if s is None

@@ -39,7 +39,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import replace
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -56,8 +56,6 @@ from mscap.fem.simulate import solve_poses
 from mscap.mesh.layered import LayeredMesh
 from mscap.scene.poses import PokePose, StretchPose
 
-if TYPE_CHECKING:
-    from mscap.scene.settings import Scene
 
 __all__ = ["AdjointError", "RestGradient", "pose_rest_gradient", "elastic_rest_vjp", "ball_rest_vjp",
            "dirichlet_vjp", "problem_at", "moved", "solve_moved_pose"]
@@ -76,7 +74,7 @@ class RestGradient(NamedTuple):
 
 
 @phase("adjoint")
-def pose_rest_gradient(sim, pose_index: int, weights, scene: Scene) -> RestGradient:
+def pose_rest_gradient(sim, pose_index: int, weights, pose) -> RestGradient:
     """Gradient of ``Σ_j w_j C_j`` (pF) of one pose with respect to the rest positions.
 
     Parameters
@@ -84,14 +82,14 @@ def pose_rest_gradient(sim, pose_index: int, weights, scene: Scene) -> RestGradi
     sim
         A :class:`~mscap.fem.simulate.Simulation` run with ``keep_factorisation=True``.
     pose_index
-        The pose (index into ``scene.poses`` and ``sim.poses``).
+        The pose's index into ``sim.poses``.
     weights
         ``(k,)`` weights ``w_j`` (for an objective: ``∂J/∂C`` of this pose).
-    scene
-        The scene ``sim`` was run for (its poses give the Dirichlet data).
+    pose
+        The pose ``sim.poses[pose_index]`` was solved for (its Dirichlet data and loads).
     """
     started = time.perf_counter()
-    result, pose = sim.poses[pose_index], scene.poses[pose_index]
+    result = sim.poses[pose_index]
     g_f = electrostatic.capacitance_vjp(sim.electro, result.capacitances, weights, result.vertices)
     problem = sim.elastic
     if result.state is None:
@@ -285,18 +283,17 @@ def moved(sim, fine_points: np.ndarray, elastic_points: np.ndarray | None = None
     return replace(sim, mesh=mesh, electro=electro, elastic=elastic, poses=())
 
 
-def solve_moved_pose(sim, scene: Scene, pose_index: int, start: np.ndarray | None = None,
-                     settings: NewtonSettings | None = None
+def solve_moved_pose(sim, pose, settings: NewtonSettings, start: np.ndarray | None = None
                      ) -> tuple[electrostatic.Capacitances, ElasticState | None]:
-    """Capacitances (and equilibrium) of one pose of ``sim`` (e.g. from :func:`moved`).
+    """Capacitances (and equilibrium) of ``pose`` on ``sim`` (e.g. from :func:`moved`) with
+    the Newton ``settings`` (a scene's ``[elastic]``).
 
     ``start`` is a displacement ``(n_nodes, 3)`` (e.g. of the pose at nearby rest
     positions): Newton then starts from ``rest + start`` in one load step (the forward
     loop :func:`mscap.fem.simulate.solve_poses` on this one pose)."""
-    one = replace(scene, poses=(scene.poses[pose_index],), elastic=settings or scene.elastic)
     solver = LinearSolver("electro_")
     try:
-        result = solve_poses(sim, one, solver, None, [start])[0]
+        result = solve_poses(sim, (pose,), settings, solver, None, [start])[0]
     finally:
         solver.destroy()
     return result.capacitances, result.state

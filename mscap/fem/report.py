@@ -93,7 +93,7 @@ def rest_capacitance(scene: Scene, order: int | None = None, maxwell: bool = Fal
     start = time.perf_counter()
     mesh = mesh_scene(scene)
     meshed = time.perf_counter()
-    problem = electrostatic.build_problem(mesh, scene.layers, *element_of(scene, order))
+    problem = electrostatic.build_problem(mesh, scene.layers, *element_of(scene.mesh, order))
     prepared = time.perf_counter()
     solver = LinearSolver("electro_")
     try:

@@ -29,7 +29,7 @@ __all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibria", 
            "factorised", "elastic_setup", "elastic_transfer", "electro_vertices", "release_freed_memory", "element_of"]
 
 if TYPE_CHECKING:
-    from mscap.scene.settings import Scene
+    from mscap.scene.settings import MeshSettings, Scene
 
 log = logging.getLogger(__name__)
 
@@ -146,7 +146,8 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     operator = Operator(problem, out_of_core=out_of_core) if problem is not None else None
     try:
         warm = starts(problem) if starts is not None and problem is not None else None
-        states, elastic_s = equilibria(sim, scene, operator, warm, keep_factorisation=keep_factorisation,
+        states, elastic_s = equilibria(sim, scene.poses, scene.elastic, operator, warm,
+                                       keep_factorisation=keep_factorisation,
                                        progress=progress)
         del warm
     finally:  # PETSc objects free their memory only when destroyed
@@ -156,14 +157,14 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     try:
         mesh = mesh if mesh2d is None else extrude_scene(scene, mesh2d)
         sim = replace(sim, mesh=mesh, transfer=elastic_transfer(problem, mesh),
-                      electro=electrostatic.build_problem(mesh, scene.layers, *element_of(scene, order),
+                      electro=electrostatic.build_problem(mesh, scene.layers, *element_of(scene.mesh, order),
                                                           every_plate=every_plate))
     except BaseException:
         _free(states)
         raise
     solver = LinearSolver("electro_", out_of_core)
     try:
-        results = capacitances(sim, scene, states, elastic_s, solver, keep_fields=keep_fields, progress=progress,
+        results = capacitances(sim, scene.poses, states, elastic_s, solver, keep_fields=keep_fields, progress=progress,
                                maxwell=maxwell)
     finally:
         solver.destroy()
@@ -212,39 +213,40 @@ def factorised(problem: ElasticProblem, pose, settings: NewtonSettings, state: E
     return replace(state, operator=factorise_equilibrium(problem, loading_for(problem, pose), settings, state.nodes))
 
 
-def solve_poses(sim: Simulation, scene: Scene, solver: LinearSolver, operator: Operator | None,
-                starts: Sequence[np.ndarray | None] | None = None, keep_factorisation: bool = False,
-                keep_fields: bool = True, progress: Callable[[str], None] | None = None,
+def solve_poses(sim: Simulation, poses: Sequence, settings: NewtonSettings, solver: LinearSolver,
+                operator: Operator | None, starts: Sequence[np.ndarray | None] | None = None,
+                keep_factorisation: bool = False, keep_fields: bool = True,
+                progress: Callable[[str], None] | None = None,
                 stale: Sequence[Operator | None] | None = None) -> tuple[PoseResult, ...]:
-    """The forward loop: every pose of ``scene`` on ``sim``'s meshes (its own poses are
-    ignored): :func:`equilibria` (warm from ``starts[i]`` when given, on ``stale[i]`` too),
-    then :func:`capacitances`.
+    """The forward loop: every pose of ``poses`` on ``sim``'s meshes (its own poses are
+    ignored) with the Newton ``settings`` (a scene's ``[elastic]``): :func:`equilibria`
+    (warm from ``starts[i]`` when given, on ``stale[i]`` too), then :func:`capacitances`.
 
     ``solver`` (electrostatic) and ``operator`` (elastic, ``None`` if every pose is free)
     are reused across poses; the caller owns and destroys them."""
-    states, elastic_s = equilibria(sim, scene, operator, starts, keep_factorisation, progress, stale)
-    return capacitances(sim, scene, states, elastic_s, solver, keep_fields, progress)
+    states, elastic_s = equilibria(sim, poses, settings, operator, starts, keep_factorisation, progress, stale)
+    return capacitances(sim, poses, states, elastic_s, solver, keep_fields, progress)
 
 
-def equilibria(sim: Simulation, scene: Scene, operator: Operator | None,
+def equilibria(sim: Simulation, poses: Sequence, settings: NewtonSettings, operator: Operator | None,
                starts: Sequence[np.ndarray | None] | None = None, keep_factorisation: bool = False,
                progress: Callable[[str], None] | None = None,
                stale: Sequence[Operator | None] | None = None) -> tuple[list, list]:
-    """Every pose's elastic equilibrium (``None`` for a free pose) and its seconds, warm
-    from ``starts[i]`` (on ``stale[i]``, :func:`equilibrium`) when given. On a failure the
-    factorisations kept so far are freed before the error propagates."""
+    """Every pose's elastic equilibrium (``None`` for a free pose) and its seconds, with the
+    Newton ``settings``, warm from ``starts[i]`` (on ``stale[i]``, :func:`equilibrium`) when
+    given. On a failure the factorisations kept so far are freed before the error propagates."""
     say = progress or (lambda message: None)
-    starts = starts if starts is not None else [None] * len(scene.poses)
-    stale = stale if stale is not None else [None] * len(scene.poses)
+    starts = starts if starts is not None else [None] * len(poses)
+    stale = stale if stale is not None else [None] * len(poses)
     states, seconds = [], []
     try:
-        for i, pose in enumerate(scene.poses):
+        for i, pose in enumerate(poses):
             t0 = time.perf_counter()
             state = None
             if pose.kind != "free":
-                state = equilibrium(sim.elastic, pose, scene.elastic, operator, starts[i],
+                state = equilibrium(sim.elastic, pose, settings, operator, starts[i],
                                     keep_factorisation=keep_factorisation, progress=progress, stale=stale[i])
-                say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: equilibrium in {state.load_steps} load steps, "
+                say(f"pose {i + 1}/{len(poses)} {pose.name}: equilibrium in {state.load_steps} load steps, "
                     f"{state.newton_iterations} Newton iterations ({time.perf_counter() - t0:.2f} s)")
             states.append(state)
             seconds.append(time.perf_counter() - t0)
@@ -254,17 +256,17 @@ def equilibria(sim: Simulation, scene: Scene, operator: Operator | None,
     return states, seconds
 
 
-def capacitances(sim: Simulation, scene: Scene, states: Sequence[ElasticState | None], elastic_s: Sequence[float],
+def capacitances(sim: Simulation, poses: Sequence, states: Sequence[ElasticState | None], elastic_s: Sequence[float],
                  solver: LinearSolver, keep_fields: bool = True,
                  progress: Callable[[str], None] | None = None, maxwell: bool = False) -> tuple[PoseResult, ...]:
-    """Every pose's capacitances on ``sim.electro`` at the equilibria ``states`` (from
+    """Every pose's capacitances (of ``poses``) on ``sim.electro`` at the equilibria ``states`` (from
     :func:`equilibria`). Without ``keep_fields`` a result's ``capacitances.potentials`` and
     ``vertices`` are ``None``. On a failure (e.g. an inverted tet at a rejected line-search
     trial) the factorisations ``states`` kept are freed before the error propagates."""
     say = progress or (lambda message: None)
     results = []
     try:
-        for i, (pose, state) in enumerate(zip(scene.poses, states)):
+        for i, (pose, state) in enumerate(zip(poses, states)):
             vertices = sim.mesh.points if state is None else sim.vertices(state.nodes)
             t1 = time.perf_counter()
             try:
@@ -275,7 +277,7 @@ def capacitances(sim: Simulation, scene: Scene, states: Sequence[ElasticState | 
             if not keep_fields:
                 caps, vertices = replace(caps, potentials=None), None
             results.append(PoseResult(pose.name, pose.kind, state, caps, vertices, elastic_s[i], t2 - t1))
-            say(f"pose {i + 1}/{len(scene.poses)} {pose.name}: C = "
+            say(f"pose {i + 1}/{len(poses)} {pose.name}: C = "
                 f"{np.array2string(caps.capacitance_pF, precision=3)} pF "
                 f"(elastic {elastic_s[i]:.2f} s, electrostatic {t2 - t1:.2f} s)")
     except BaseException:
@@ -291,11 +293,11 @@ def _free(states) -> None:
             state.operator.destroy()
 
 
-def element_of(scene: Scene, order: int | None = None) -> tuple[int, str]:
-    """The electrostatic element order and shape for ``scene`` (``order`` overriding its
-    ``[mesh] order``): its ``[mesh] element``, except that P2 is tets only."""
-    order = order or scene.mesh.order
-    return order, scene.mesh.element if order == 1 else "tet"
+def element_of(settings: MeshSettings, order: int | None = None) -> tuple[int, str]:
+    """The electrostatic element order and shape of a scene's ``[mesh]`` ``settings``
+    (``order`` overriding its ``order``): its ``element``, except that P2 is tets only."""
+    order = order or settings.order
+    return order, settings.element if order == 1 else "tet"
 
 
 def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None, transfer: bool = True,

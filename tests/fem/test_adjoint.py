@@ -159,14 +159,14 @@ def test_pose_gradient_taylor_and_central_differences(simulated, slide):
     delta = np.concatenate([smooth_field(fine, lo, hi, v, slide).ravel(),
                             smooth_field(elastic, lo, hi, v, slide).ravel()])
     for i, result in enumerate(sim.poses):
-        g = adjoint.pose_rest_gradient(sim, i, weights, scene)
+        g = adjoint.pose_rest_gradient(sim, i, weights, scene.poses[i])
         if sim.transfer is None and result.state is not None:
             assert not g.fine.any()  # shared mesh: everything is in the elastic part
         start = None if result.state is None else result.state.nodes - sim.elastic.rest
 
         def J(x):
             moved = adjoint.moved(sim, x[:fine.size].reshape(fine.shape), x[fine.size:].reshape(elastic.shape))
-            caps, _ = adjoint.solve_moved_pose(moved, scene, i, start=start)
+            caps, _ = adjoint.solve_moved_pose(moved, scene.poses[i], scene.elastic, start=start)
             return weights @ caps.capacitance_pF
 
         taylor = taylor_test(J, x0, delta, np.concatenate([g.fine.ravel(), g.elastic.ravel()]),
@@ -189,7 +189,7 @@ def test_a_gradient_needs_the_kept_factorisation(simulated):
     lost = dataclasses.replace(sim.poses[i], state=dataclasses.replace(sim.poses[i].state, operator=None))
     sim = dataclasses.replace(sim, poses=sim.poses[:i] + (lost,))
     with pytest.raises(adjoint.AdjointError, match="keep_factorisation"):
-        adjoint.pose_rest_gradient(sim, i, np.ones(sim.electro.k), scene)
+        adjoint.pose_rest_gradient(sim, i, np.ones(sim.electro.k), scene.poses[i])
 
 
 def test_a_factorisation_made_after_the_solve_gives_the_same_gradient(simulated):
@@ -208,8 +208,8 @@ def test_a_factorisation_made_after_the_solve_gives_the_same_gradient(simulated)
         poses = list(sim.poses)
         poses[i] = dataclasses.replace(result, state=later)
         try:
-            kept = adjoint.pose_rest_gradient(sim, i, weights, scene)
-            made = adjoint.pose_rest_gradient(dataclasses.replace(sim, poses=tuple(poses)), i, weights, scene)
+            kept = adjoint.pose_rest_gradient(sim, i, weights, scene.poses[i])
+            made = adjoint.pose_rest_gradient(dataclasses.replace(sim, poses=tuple(poses)), i, weights, scene.poses[i])
         finally:
             later.operator.destroy()
         scale = max(np.abs(kept.elastic).max(), np.abs(kept.fine).max())
