@@ -61,7 +61,7 @@ sys.path.insert(0, str(ROOT))
 
 from mscap.calibration.reconstruction import fit, point_errors  # noqa: E402
 from mscap.calibration.service import Candidate, read_cache, targets  # noqa: E402
-from mscap.design.readback import (MapNoise, ReadbackError, ReconstructionBound, design_scene,  # noqa: E402
+from mscap.design.readback import (MapNoise, ReadbackError, ReconstructionBound, design_poses,  # noqa: E402
                                    difference_variance, reading_variance)
 from mscap.scene import load_scene  # noqa: E402
 
@@ -71,13 +71,13 @@ CANDIDATES = ("bound", "bound_prior/100", "bound_prior*10", "bound_prior*100", "
 SLOW = ("loo", "loo_training", "noise_training", "bound+loo")
 
 
-def design_rows(scene, training: np.ndarray, reference: np.ndarray | None) -> tuple[np.ndarray, list[int]]:
-    """The design scene's ``(n_rows, k)`` capacitances from the cached training family, and
-    the training index of each grid point."""
-    fam = scene.design_family
+def design_rows(scene, designed, training: np.ndarray, reference: np.ndarray | None) -> tuple[np.ndarray, list[int]]:
+    """The ``(n_rows, k)`` capacitances of the scene's design poses ``designed`` from the
+    cached training family, and the training index of each grid point."""
+    fam = designed.family
     values = np.asarray(scene.calibration.training, dtype=float)
     index = [int(np.flatnonzero(np.all(np.isclose(values, v), axis=1))[0]) for v in fam.values]
-    c = np.full((len(scene.poses), training.shape[1]), np.nan)
+    c = np.full((len(designed.poses), training.shape[1]), np.nan)
     c[fam.rows] = training[index]
     if fam.reference_row is not None:
         c[fam.reference_row] = reference
@@ -168,7 +168,7 @@ def score_run(path: Path, fast: bool = False) -> list[dict]:
     from mscap.service.store import read_store
 
     original = load_scene(path.with_suffix(".toml"))
-    scene = design_scene(original)
+    scene, designed = original, design_poses(original)
     cal = scene.calibration
     y_train, dim = targets(original, "training")
     cache = cache_path(path)
@@ -177,14 +177,15 @@ def score_run(path: Path, fast: bool = False) -> list[dict]:
         errors = f["calibration/error_mm"][()]
         stored = f["calibration/bound_mm"][()]
     store = read_store(path)
-    bound = ReconstructionBound.of(scene)
+    bound = ReconstructionBound.of(scene, designed)
     values = np.asarray(cal.training, dtype=float)
     counts = [len(np.unique(values[:, i])) for i in range(values.shape[1])]
-    full = design_scene(replace(original, optimizer=replace(original.optimizer, family_grid=counts)))
-    full_bound = ReconstructionBound.of(full)
-    readback = ReadbackError(bound, MapNoise.of(scene))
-    full_noise = MapNoise.of(full)
-    priors = {name: ReconstructionBound(replace(scene.design_family, prior=scene.design_family.prior * f), bound.tau_mm)
+    full_scene = replace(original, optimizer=replace(original.optimizer, family_grid=counts))
+    full = design_poses(full_scene)
+    full_bound = ReconstructionBound.of(full_scene, full)
+    readback = ReadbackError(bound, MapNoise.of(scene, designed))
+    full_noise = MapNoise.of(full_scene, full)
+    priors = {name: ReconstructionBound(replace(designed.family, prior=designed.family.prior * f), bound.tau_mm)
               for name, f in (("bound_prior/100", 0.01), ("bound_prior*10", 10.0), ("bound_prior*100", 100.0))}
     rows = []
     try:
@@ -193,9 +194,9 @@ def score_run(path: Path, fast: bool = False) -> list[dict]:
             names = ("training",) + ((f"reference_{cal.reference}",) if cal.reference else ())
             data = read_cache(cache, design, names)
             reference = data[f"reference_{cal.reference}"][0] if cal.reference else None
-            c_rows, index = design_rows(scene, data["training"], reference)
+            c_rows, index = design_rows(scene, designed, data["training"], reference)
             c_grid, y_grid = data["training"][index], y_train[index]
-            c_full = design_rows(full, data["training"], reference)[0]
+            c_full = design_rows(full_scene, full, data["training"], reference)[0]
             value = {"bound": bound.value_and_gradient(c_rows)[0],
                      "readback": readback.value(c_rows), "map_noise_full": full_noise.value(c_full),
                      "bound_mean": float(bound.per_pose_mm(c_rows).mean()),

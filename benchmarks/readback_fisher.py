@@ -36,7 +36,7 @@ def report(label: str, bound, capacitance_pF: np.ndarray) -> None:
 
 
 def main() -> None:
-    from mscap.design.readback import ReconstructionBound, design_scene
+    from mscap.design.readback import ReconstructionBound
     from mscap.scene import load_scene
     from mscap.service.store import read_run, read_store
 
@@ -45,10 +45,10 @@ def main() -> None:
     parser.add_argument("design", help="results file (.h5) or `mscap optimize` directory")
     parser.add_argument("run", nargs="?", help="run id of the results file")
     args = parser.parse_args()
-    scene = design_scene(load_scene(args.scene))
-    if scene.design_family is None:
+    scene = load_scene(args.scene)
+    bound = ReconstructionBound.of(scene)
+    if bound is None:
         sys.exit(f"{args.scene}: no design family ([optimizer] design_poses = \"listed\")")
-    bound = ReconstructionBound(scene.design_family, scene.optimizer.tau_mm)
     path = Path(args.design)
     if path.is_dir():
         summary = json.loads((path / "summary.json").read_text())

@@ -146,7 +146,7 @@ def _simulate_chunk(scene: Scene, design: Candidate, poses: tuple, mesh=None) ->
     from mscap.fem.simulate import simulate
     from mscap.scene.sizing import with_layout
 
-    s = replace(with_layout(scene, Layout(design.outlines)), poses=poses)  # sized for its plates
+    s = with_layout(scene, Layout(design.outlines))  # sized for its plates
     if design.wiring is not None:
         from mscap.fabrication.wired import readings, wired_mesh
         mesh = mesh or wired_mesh(s, design.wiring)
@@ -154,8 +154,8 @@ def _simulate_chunk(scene: Scene, design: Candidate, poses: tuple, mesh=None) ->
         mesh = mesh or mesh_scene(s)
     try:
         if design.wiring is not None:
-            return readings(s, design.wiring, mesh)
-        sim = simulate(s, mesh=mesh)
+            return readings(s, design.wiring, mesh, poses=poses)
+        sim = simulate(s, mesh=mesh, poses=poses)
         return sim.capacitance_pF, np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])
     except MscapError as exc:
         if len(poses) == 1:

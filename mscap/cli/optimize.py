@@ -33,7 +33,6 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from mscap.design.optimizer import optimize
-    from mscap.design.readback import design_scene
     from mscap.design.starts import start_design
     from mscap.outputs import output_directory, replace_file
     from mscap.service.designs import OPTIMIZE_FILES, write_optimize_output
@@ -46,11 +45,11 @@ def run(args) -> int:
     if args.cascade is not None and not 0 <= args.cascade <= MAX_CASCADE_LEVELS:
         raise DesignError(f"--cascade: must lie in 0..{MAX_CASCADE_LEVELS} (each level doubles the control "
                           f"points), got {args.cascade}")
-    scene = design_scene(load_scene_for(args))  # the design poses: listed, or from the family
+    scene = load_scene_for(args)
     out = output_directory(args.output, "optimize -o")  # before the work
     say = progress_printer(args.quiet) or (lambda message: None)
     layout, design = start_design(scene, args.k, args.seed, args.init)
-    say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(scene.poses)} design poses")
+    say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(design.poses)} design poses")
     result = optimize(design, progress=say, max_iterations=args.max_iterations, cascade_levels=args.cascade)
 
     summary = write_optimize_output(out, scene, layout, result, args.seed, args.init)

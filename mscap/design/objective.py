@@ -50,7 +50,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mscap.design.history import HEAD, TAIL
-from mscap.design.readback import ProtocolDissimilarity, ReconstructionBound, design_scene, read_back_estimate
+from mscap.design.readback import (DesignPoses, ProtocolDissimilarity, ReconstructionBound, design_poses,
+                                   read_back_estimate)
 from mscap.design.terms import Sum, Term, Weighted, soft_min
 from mscap.errors import GeometryError, MscapError
 from mscap.fem.elastic.contact import barrier, barrier_derivatives
@@ -431,8 +432,9 @@ class LayoutObjective:
         return self.separation.max_step(outlines, directions, keep)
 
 
-def capacitance_term(scene: Scene) -> Term:
-    """The term d of the scene, maximised (J = −d + ...):
+def capacitance_term(scene: Scene, designed: DesignPoses | None = None) -> Term:
+    """The term d of the scene, maximised (J = −d + ...), over its design poses
+    ``designed`` (default: :func:`~mscap.design.readback.design_poses`):
 
     - ``"pF"``: :class:`Dissimilarity` (``tau_pF2``);
     - ``"noise"``: :class:`mscap.design.readback.ProtocolDissimilarity` (``tau_noise``), pairwise
@@ -446,18 +448,18 @@ def capacitance_term(scene: Scene) -> Term:
     settings = scene.optimizer
     if settings.distance == "pF":
         return Dissimilarity(settings.tau_pF2)
-    scene = design_scene(scene)
-    if settings.distance == "reconstruction":  # design_scene checked there is a family
-        return -1.0 * ReconstructionBound(scene.design_family, settings.tau_mm)
+    designed = designed or design_poses(scene)
+    if settings.distance == "reconstruction":  # design_poses checked there is a family
+        return -1.0 * ReconstructionBound(designed.family, settings.tau_mm)
     if settings.distance == "readback":
-        return -1.0 * read_back_estimate(scene)
+        return -1.0 * read_back_estimate(scene, designed)
     cal = scene.calibration
     noise = cal.noise if cal is not None else NoiseModel()
     reference = None
-    if scene.design_family is not None:
-        reference = scene.design_family.reference_row
+    if designed.family is not None:
+        reference = designed.family.reference_row
     elif cal is not None and cal.reference is not None:
-        reference = [p.name for p in scene.poses].index(cal.reference)
+        reference = list(designed.names).index(cal.reference)
     return ProtocolDissimilarity(noise, reference, settings.tau_noise)
 
 
@@ -496,14 +498,16 @@ class PlateAreaBarrier(Term):
         return float(barrier(np.array([slack]), self.dhat)[0])
 
 
-def layout_objective(scene: Scene, dhat_mm: float | None = None) -> LayoutObjective:
+def layout_objective(scene: Scene, dhat_mm: float | None = None, *,
+                     designed: DesignPoses | None = None) -> LayoutObjective:
     """J = −d + w_b (B + B_area) + w_s S from a scene's ``[optimizer]`` (``distance``,
     ``tau_pF2`` / ``tau_noise`` / ``tau_mm``, ``barrier_weight``, ``smoothing_weight``,
     ``max_plate_area_mm2``, ``min_feature_mm``) and ``[capacitors] min_gap_mm``; the terms
-    named ``d``, ``barrier``, ``area`` (with an area limit) and ``smoothing``."""
+    named ``d``, ``barrier``, ``area`` (with an area limit) and ``smoothing``; d over the
+    design poses ``designed`` (default: the scene's)."""
     settings = scene.optimizer
     separation = SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm, feature_mm=settings.min_feature_mm)
-    terms = [NamedTerm("d", capacitance_term(scene), -1.0, "capacitance"),
+    terms = [NamedTerm("d", capacitance_term(scene, designed), -1.0, "capacitance"),
              NamedTerm("barrier", separation, settings.barrier_weight, "outlines")]
     if settings.max_plate_area_mm2 > 0:
         terms.append(NamedTerm("area", PlateAreaBarrier(settings.max_plate_area_mm2), settings.barrier_weight,

@@ -44,7 +44,7 @@ import numpy as np
 from mscap.design.deformer import Deformer, build_deformer
 from mscap.design.history import min_pairwise_l1
 from mscap.design.objective import LayoutObjective, layout_objective
-from mscap.design.readback import design_scene
+from mscap.design.readback import DesignPoses, design_poses
 from mscap.design.resolution import ErrorModel, error_model
 from mscap.errors import DesignError, FabricationError
 from mscap.fem.adjoint import moved, pose_rest_gradient
@@ -185,6 +185,9 @@ class Design:
     deformer: Deformer
     elastic_weights: np.ndarray | None
     objective: LayoutObjective
+    #: The poses the design is simulated and judged on and their family (the scene's
+    #: listed poses, or its calibration family's grid): :func:`~mscap.design.readback.design_poses`.
+    designed: DesignPoses
     #: Solvers reused by every evaluation (same patterns, so PETSc's symbolic
     #: factorisations are kept; a new KSP per evaluation also kept ~15 MB each alive).
     workspace: dict = field(default_factory=dict, repr=False)
@@ -213,6 +216,11 @@ class Design:
     def n_controls(self) -> int:
         return self.deformer.n_controls
 
+    @property
+    def poses(self) -> tuple:
+        """The design poses, the rows of every capacitance table of this design."""
+        return self.designed.poses
+
     # -- the forward map -------------------------------------------------------------
     def rest_points(self, q) -> tuple[np.ndarray, np.ndarray | None]:
         """Rest positions of the electrostatic and the elastic mesh vertices at ``q``."""
@@ -240,7 +248,7 @@ class Design:
         solver, operator = self._solvers()
         # No factorisation is kept here: the gradient factorises each pose's Hessian when asked
         # (Evaluation.factorise), so a rejected trial costs none and holds no memory.
-        results = solve_poses(sim, self.scene.poses, self.scene.elastic, solver, operator, starts, stale=stale)
+        results = solve_poses(sim, self.poses, self.scene.elastic, solver, operator, starts, stale=stale)
         for result in results:
             if not np.isfinite(result.capacitance_pF).all():
                 raise DesignError(f"pose {result.name!r}: capacitances {result.capacitance_pF} are not finite")
@@ -282,7 +290,7 @@ class Design:
         from mscap.fabrication.during import wiring_offset
 
         try:
-            wiring = wiring_offset(self.scene, self.deformer.outlines(q), progress)
+            wiring = wiring_offset(self.scene, self.deformer.outlines(q), progress, poses=self.poses)
         except FabricationError as exc:
             log.warning("routing during the optimisation: %s; J keeps %s", exc,
                         "the plates alone" if self.wiring is None else "the last route's leads")
@@ -300,7 +308,7 @@ class Design:
         # Capacitance part: one elastic adjoint per pose, to both rest meshes.
         g_fine = np.zeros_like(e.sim.mesh.points)
         g_elastic = None if e.sim.elastic is None else np.zeros((e.sim.elastic.n_vertices, 3))
-        for i, pose in enumerate(self.scene.poses):
+        for i, pose in enumerate(self.poses):
             e.factorise(i, pose, self.scene.elastic)
             part = pose_rest_gradient(e.sim, i, dJ_dC[i], pose)
             g_fine += part.fine
@@ -321,7 +329,7 @@ class Design:
     @cached_property
     def errors(self) -> ErrorModel:
         """The a-priori error model of this design's meshes and poses."""
-        return error_model(self.scene)
+        return error_model(self.scene, self.poses)
 
     def outline_gradient(self, q, dJ_doutlines=None) -> np.ndarray:
         """The outline part of ``dJ/dq`` ``(c, 2)``: ``w_b (B + B_area) + w_s S``
@@ -347,7 +355,7 @@ class Design:
             weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
         # Same meshes, same patterns: the solvers (and their symbolic factorisations) carry over.
         return Design(replace(self.scene, layout=deformer.layout(deformer.zeros())), base, deformer, weights,
-                      self.objective, self.workspace, self.wiring)
+                      self.objective, self.designed, self.workspace, self.wiring)
 
 
 def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:
@@ -358,13 +366,14 @@ def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:
 
 def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None = None, count=None,
                  method: str | None = None, base: Simulation | None = None,
-                 objective: LayoutObjective | None = None) -> Design:
+                 objective: LayoutObjective | None = None, poses: DesignPoses | None = None) -> Design:
     """Mesh ``scene`` (with ``layout`` in place of its own, if given) and build the design.
 
     Controls: ``count`` per outline, else ``control_spacing_mm`` (default: the scene's
     ``[optimizer] control_spacing_mm``); ``method``: skinning (default the scene's);
     ``objective``: J (default the scene's, :func:`~mscap.design.objective.layout_objective`;
-    a remesh keeps the design's own).
+    a remesh keeps the design's own); ``poses``: the design poses (default the scene's,
+    :func:`~mscap.design.readback.design_poses`; a remesh keeps the design's own).
     """
     if layout is not None:
         scene = replace(scene, layout=layout)
@@ -372,10 +381,10 @@ def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None 
         scene = replace(scene, optimizer=replace(scene.optimizer, skinning=method))
     # The stages in floor order (docs/architecture.md): the scene's design poses and
     # checks, the meshes, the rest problems on them, then the design's own objects.
-    scene = design_scene(scene)
-    check_designable(scene)
+    designed = poses or design_poses(scene)
+    check_designable(scene, designed.poses)
     if base is None:
-        base = rest_problems(scene)
+        base = rest_problems(scene, designed.poses)
     settings = scene.optimizer
     spacing = None if count is not None else (control_spacing_mm or settings.control_spacing_mm)
     deformer = build_deformer(base.mesh.mesh2d, scene.layout, spacing_mm=spacing, count=count,
@@ -383,16 +392,17 @@ def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None 
     weights = None
     if base.elastic is not None and base.transfer is not None:
         weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
-    return Design(scene, base, deformer, weights, objective or layout_objective(scene))
+    return Design(scene, base, deformer, weights, objective or layout_objective(scene, designed=designed), designed)
 
 
-def rest_problems(scene: Scene) -> Simulation:
-    """The rest meshes and problems of ``scene`` (a :class:`Simulation` without poses): the
-    electrostatic mesh and the elastic one its poses need (the mesh floor), then the
-    electrostatic and elastic problems and the transfer between them (the fem floor)."""
+def rest_problems(scene: Scene, poses) -> Simulation:
+    """The rest meshes and problems of ``scene`` for ``poses`` (a :class:`Simulation`
+    without poses): the electrostatic mesh and the elastic one the poses need (the mesh
+    floor), then the electrostatic and elastic problems and the transfer between them (the
+    fem floor)."""
     mesh = mesh_scene(scene)
     electrostatic.check_plates(mesh)  # a bad layout fails before the elastic mesh is made
-    elastic_mesh = None if all(p.kind == "free" for p in scene.poses) else mesh_elastic(scene, mesh)
-    problem, transfer = elastic_setup(scene, mesh, elastic_mesh=elastic_mesh)
+    elastic_mesh = None if all(p.kind == "free" for p in poses) else mesh_elastic(scene, mesh, poses)
+    problem, transfer = elastic_setup(scene, mesh, elastic_mesh=elastic_mesh, poses=poses)
     electro = electrostatic.build_problem(mesh, scene.layers, *element_of(scene.mesh))
     return Simulation(scene.name, mesh, problem, electro, (), {}, transfer)

@@ -5,7 +5,7 @@ for read-back").
 The paper's objective separates a few hand-listed poses in pF. A sensor is judged by the
 pose read back from noisy read-outs over a continuous family, so a scene with a
 ``[calibration]`` can instead optimise on a regular sub-grid of its training family
-(:func:`design_scene`) against
+(:func:`design_poses`) against
 
 - :class:`ProtocolDissimilarity`: the soft minimum of pairwise distances measured in the
   standard deviation of the read-out difference under the protocol the sensor is read
@@ -48,7 +48,7 @@ from mscap.scene.calibration import NoiseModel, family_poses
 from mscap.scene.loader import check_optimizer, family_grid_counts
 from mscap.scene.settings import Scene
 
-__all__ = ["DesignFamily", "design_family", "design_scene", "ProtocolDissimilarity",
+__all__ = ["DesignFamily", "DesignPoses", "design_family", "design_poses", "ProtocolDissimilarity",
            "ReconstructionBound", "MapNoise", "ReadbackError", "read_back_estimate", "reading_variance",
            "difference_variance", "grid_pose_name", "grid_derivatives"]
 
@@ -200,14 +200,27 @@ def design_family(scene: Scene) -> tuple[tuple, DesignFamily | None]:
     return tuple(poses), family
 
 
-def design_scene(scene: Scene) -> Scene:
-    """``scene`` with its design poses in place of its listed ones (the same scene when
-    ``design_poses = "listed"``) and ``design_family`` set; checks ``[optimizer]``
-    (:func:`mscap.scene.loader.check_optimizer`). Idempotent."""
-    if scene.design_family is not None:
-        return scene
-    poses, family = design_family(scene)
-    return scene if family is None else replace(scene, poses=poses, design_family=family)
+@dataclass(frozen=True)
+class DesignPoses:
+    """What a design of a scene is simulated and judged on (``[optimizer] design_poses``):
+    ``poses``, the scene's listed poses or the calibration family's grid (with the
+    reference pose; both, for ``"both"``), and ``family``, the :class:`DesignFamily` of the
+    grid (``None`` for the listed poses). Made from the scene by :func:`design_poses` and
+    carried beside it, by the :class:`~mscap.design.pipeline.Design`: the scene itself
+    stays the sensor and its listed poses."""
+
+    poses: tuple
+    family: DesignFamily | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.poses)
+
+
+def design_poses(scene: Scene) -> DesignPoses:
+    """The :class:`DesignPoses` of ``scene``; checks ``[optimizer]``
+    (:func:`mscap.scene.loader.check_optimizer`)."""
+    return DesignPoses(*design_family(scene))
 
 
 # ---------------------------------------------------------------- objective terms
@@ -277,10 +290,12 @@ class ReconstructionBound(Term):
     tau_mm: float = 0.25
 
     @classmethod
-    def of(cls, scene: Scene) -> ReconstructionBound | None:
-        """The bound a design scene's runs are judged by (its design family, ``[optimizer]
-        tau_mm``), or ``None`` when it has no family (:func:`design_scene`)."""
-        return None if scene.design_family is None else cls(scene.design_family, scene.optimizer.tau_mm)
+    def of(cls, scene: Scene, designed: DesignPoses | None = None) -> ReconstructionBound | None:
+        """The bound a scene's runs are judged by (its design family, ``[optimizer]
+        tau_mm``), or ``None`` when it designs on its listed poses; ``designed``: the
+        scene's :func:`design_poses`, if already made."""
+        family = (designed or design_poses(scene)).family
+        return None if family is None else cls(family, scene.optimizer.tau_mm)
 
     def per_pose_mm(self, capacitance_pF: np.ndarray) -> np.ndarray:
         """r_g (mm) per grid point."""
@@ -392,12 +407,14 @@ class MapNoise(Term):
     min_spread: float = 0.5
 
     @classmethod
-    def of(cls, scene: Scene) -> MapNoise:
-        """The term of a design scene with a design family (:func:`design_scene`)."""
+    def of(cls, scene: Scene, designed: DesignPoses | None = None) -> MapNoise:
+        """The term of a scene that designs on its calibration family (``designed``: its
+        :func:`design_poses`, if already made)."""
         cal = scene.calibration
         if cal.kernel != "thin_plate_spline":
             raise ValueError(f"the map's noise is written for the thin-plate spline, not {cal.kernel!r}")
-        return cls(scene.design_family, cal.smoothing, cal.features == "whitened", cal.min_spread)
+        return cls((designed or design_poses(scene)).family, cal.smoothing, cal.features == "whitened",
+                   cal.min_spread)
 
     def per_pose_mm(self, capacitance_pF: np.ndarray) -> np.ndarray:
         """√E_g (mm) per grid point."""
@@ -506,11 +523,13 @@ class ReadbackError(Term):
         return value, (b * g_b + m * g_m) / value
 
 
-def read_back_estimate(scene: Scene) -> Term | None:
-    """What a design scene's runs are judged by before calibration (mm, stored as
-    ``bound_mm``): the :class:`ReadbackError` when the scene optimises it, else the
-    :class:`ReconstructionBound`; ``None`` without a design family."""
-    bound = ReconstructionBound.of(scene)
+def read_back_estimate(scene: Scene, designed: DesignPoses | None = None) -> Term | None:
+    """What a scene's runs are judged by before calibration (mm, stored as ``bound_mm``):
+    the :class:`ReadbackError` when the scene optimises it, else the
+    :class:`ReconstructionBound`; ``None`` without a design family. ``designed``: the
+    scene's :func:`design_poses`, if already made."""
+    designed = designed or design_poses(scene)
+    bound = ReconstructionBound.of(scene, designed)
     if bound is None or scene.optimizer.distance != "readback":
         return bound
-    return ReadbackError(bound, MapNoise.of(scene))
+    return ReadbackError(bound, MapNoise.of(scene, designed))

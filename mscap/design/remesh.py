@@ -89,9 +89,9 @@ def remesh(design: Design, evaluation: Evaluation) -> tuple[Design, list]:
     spacing = edge * max(1, int(np.floor(half / edge + 1e-9)))
     layout = resampled_layout(design.deformer.outlines(evaluation.q), spacing, edge, scene)
     counts = np.bincount(design.deformer.control_outline, minlength=layout.k)
-    new = replace(build_design(scene, layout=layout, count=counts, objective=design.objective),
+    new = replace(build_design(scene, layout=layout, count=counts, objective=design.objective, poses=design.designed),
                   wiring=design.wiring)  # re-routed by the optimiser
-    warm = [None] * len(scene.poses)
+    warm = [None] * len(design.poses)
     old = evaluation.sim.elastic
     if old is not None and new.base.elastic is not None:
         mapping = interpolation_matrix(old, new.base.elastic.rest)

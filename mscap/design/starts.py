@@ -105,34 +105,34 @@ def capacitance_density(problem, nodes: np.ndarray, layer: int = DIELECTRIC_LAYE
 def sensitivity_map(scene: Scene) -> SensitivityMap:
     """The :class:`SensitivityMap` of ``scene``'s design poses (its calibration family's
     grid when it designs on one, else its listed poses), cached per process and scene."""
-    from mscap.design.readback import design_scene
+    from mscap.design.readback import design_poses
     from mscap.fem.petsc import Operator
     from mscap.fem.simulate import Simulation, elastic_setup, equilibria
     from mscap.mesh.layered import mesh_scene
 
-    design = design_scene(scene)
-    fam = design.design_family
-    key = (scene.path, scene.name, tuple(p.name for p in design.poses), tuple(map(tuple, np.round(
+    designed = design_poses(scene)
+    fam = designed.family
+    key = (scene.path, scene.name, designed.names, tuple(map(tuple, np.round(
         np.concatenate(scene.layout.outlines), 6))))
     if key in _CACHE:
         return _CACHE[key]
-    mesh = mesh_scene(design)
-    problem, _ = elastic_setup(design, mesh, transfer=False)
+    mesh = mesh_scene(scene)
+    problem, _ = elastic_setup(scene, mesh, transfer=False, poses=designed.poses)
     if problem is None:
         raise GeometryError(f"{scene.path}: every design pose is free; a sensitivity start has nothing to read")
     operator = Operator(problem)
     try:
-        states, _ = equilibria(Simulation(scene.name, mesh, problem, None, (), {}), design.poses, design.elastic,
+        states, _ = equilibria(Simulation(scene.name, mesh, problem, None, (), {}), designed.poses, scene.elastic,
                                operator)
     finally:
         operator.destroy()
     density = np.array([np.ones(len(problem.mesh.mesh2d.triangles)) if s is None
                         else capacitance_density(problem, s.nodes) for s in states])   # (poses, m)
     if fam is not None:
-        rows, names = fam.rows, tuple(design.poses[r].name for r in fam.rows)
+        rows, names = fam.rows, tuple(designed.names[r] for r in fam.rows)
         base = density[fam.reference_row] if fam.reference_row is not None else 1.0
     else:
-        rows, names, base = np.arange(len(states)), tuple(p.name for p in design.poses), 1.0
+        rows, names, base = np.arange(len(states)), designed.names, 1.0
     signature = np.log(density[rows] / base).T                 # (m, n)
     tri = problem.mesh.mesh2d
     corners = tri.points[tri.triangles]
@@ -223,8 +223,8 @@ def start_design(scene: Scene, k: int | None, seed: int, init: str):
     """One start, as ``mscap optimize`` and every start of the multi-start begin: its
     initial layout (:func:`start_layout`) and the :class:`~mscap.design.pipeline.Design` of
     ``scene`` with that layout, its meshes sized for its plates
-    (:func:`mscap.scene.sizing.with_layout`). Returns ``(layout, design)``; ``design.scene``
-    holds the design poses."""
+    (:func:`mscap.scene.sizing.with_layout`). Returns ``(layout, design)``; ``design.poses``
+    are the design poses."""
     from mscap.design.pipeline import build_design
     from mscap.scene.sizing import with_layout
 

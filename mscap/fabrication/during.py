@@ -63,9 +63,9 @@ class Reroute:
     time_s: float
 
 
-def wiring_offset(scene, outlines, progress=None) -> WiringOffset:
+def wiring_offset(scene, outlines, progress=None, poses=None) -> WiringOffset:
     """Route ``outlines`` under ``scene``'s ``[fabrication]`` rules and simulate the leads'
-    share of every reading over ``scene``'s poses (the design poses).
+    share of every reading over ``poses`` (the design poses; default the scene's).
 
     Raises
     ------
@@ -81,8 +81,8 @@ def wiring_offset(scene, outlines, progress=None) -> WiringOffset:
     routing = route(outlines, scene.sheet_outline_mm, scene.fabrication)
     designed = replace(scene, layout=Layout(tuple(outlines)))
     wiring = wiring_of(routing)
-    wired, _ = readings(designed, wiring)
-    plates, _ = readings(designed, plates_only(outlines, meshed_like=wiring))
+    wired, _ = readings(designed, wiring, poses=poses)
+    plates, _ = readings(designed, plates_only(outlines, meshed_like=wiring), poses=poses)
     offset = wired - plates
     if not np.isfinite(offset).all():
         raise FabricationError(f"the routed design's readings are not finite ({routing.summary()})")

@@ -322,17 +322,18 @@ def wired_mesh(scene, wiring: Wiring) -> LayeredMesh:
     return _meshed(scene, wiring, scene.mesh)
 
 
-def wired_elastic_mesh(scene, wiring: Wiring) -> LayeredMesh | None:
+def wired_elastic_mesh(scene, wiring: Wiring, poses=None) -> LayeredMesh | None:
     """The elastic mesh of ``wiring`` on ``scene``'s ``[elastic]`` sizes and slabs: the
     scene's own elastic mesh with the nets in place of the plates, so that every lead is
     carbon-black silicone in its own conductive layer (the leads' stiffness); ``None`` when
     the scene's elastic mesh is the electrostatic one (``mesh = "shared"``: the wired mesh
-    holds the nets already) or no pose deforms the sheet."""
+    holds the nets already) or no pose (of ``poses``, default the scene's) deforms the sheet."""
     from mscap.mesh.layered import elastic_sizes
 
-    if scene.elastic.mesh == "shared" or all(p.kind == "free" for p in scene.poses):
+    poses = scene.poses if poses is None else poses
+    if scene.elastic.mesh == "shared" or all(p.kind == "free" for p in poses):
         return None
-    return _meshed(scene, wiring, elastic_sizes(scene), slabs=scene.elastic.elements_through_thickness or None)
+    return _meshed(scene, wiring, elastic_sizes(scene, poses), slabs=scene.elastic.elements_through_thickness or None)
 
 
 def _meshed(scene, wiring: Wiring, sizes, slabs: int | None = None) -> LayeredMesh:
@@ -343,8 +344,8 @@ def _meshed(scene, wiring: Wiring, sizes, slabs: int | None = None) -> LayeredMe
 
 
 def readings(scene, wiring: Wiring, mesh: LayeredMesh | None = None, progress=None,
-             stiffness: Wiring | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Every pose of ``scene`` (whose layout is the design's plates) simulated on the
+             stiffness: Wiring | None = None, poses=None) -> tuple[np.ndarray, np.ndarray]:
+    """Every pose of ``scene`` (or ``poses``; the scene's layout is the design's plates) simulated on the
     wired mesh: ``(n_poses, k)`` readings, capacitor c's the mutual capacitance of its
     row and column conductors, ``−C(bottom i, top j)`` of the Maxwell matrix (pF); and each
     pose's wall time (s). The elastic problem holds the nets (:func:`wired_elastic_mesh`),
@@ -353,9 +354,9 @@ def readings(scene, wiring: Wiring, mesh: LayeredMesh | None = None, progress=No
     from mscap.fem.simulate import simulate
 
     mesh = mesh or wired_mesh(scene, wiring)
-    elastic = wired_elastic_mesh(scene, stiffness or wiring)
+    elastic = wired_elastic_mesh(scene, stiffness or wiring, poses)
     sim = simulate(scene, mesh=mesh, keep_fields=False, progress=progress, every_plate=False, maxwell=True,
-                   elastic_mesh=elastic)
+                   elastic_mesh=elastic, poses=poses)
     k = mesh.n_capacitors
     out = np.array([[-pose.capacitances.maxwell_pF[i, k + j] for i, j in wiring.slots] for pose in sim.poses])
     wall = np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])

@@ -89,8 +89,9 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
              mesh: LayeredMesh | None = None, keep_factorisation: bool = False, keep_fields: bool = True,
              out_of_core: bool = False, progress: Callable[[str], None] | None = None,
              starts: Callable[[ElasticProblem], Sequence[np.ndarray | None]] | None = None,
-             every_plate: bool = True, maxwell: bool = False, elastic_mesh: LayeredMesh | None = None) -> Simulation:
-    """Simulate every pose of ``scene``.
+             every_plate: bool = True, maxwell: bool = False, elastic_mesh: LayeredMesh | None = None,
+             poses: Sequence | None = None) -> Simulation:
+    """Simulate every pose of ``scene`` (or ``poses``: a design's, the calibration family's grid).
 
     Parameters
     ----------
@@ -132,7 +133,8 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     electrostatic.check_plates(mesh, every_plate)  # a bad layout fails now, not after the elastic solves
     # The transfer to the electrostatic vertices is built after the elastic phase (35 MB on
     # biaxial's finer-mesh check); the elastic solves do not need it.
-    problem, _ = elastic_setup(scene, mesh, elastic_order, transfer=False, elastic_mesh=elastic_mesh)
+    poses = scene.poses if poses is None else tuple(poses)
+    problem, _ = elastic_setup(scene, mesh, elastic_order, transfer=False, elastic_mesh=elastic_mesh, poses=poses)
     # Out of core (memory over speed), a mesh made here is set aside through the elastic phase
     # when the elastic mesh is another one, and extruded again from its triangulation after it:
     # 1.7 M tets, 79 MB, on biaxial's finer-mesh check, whose elastic phase is its peak.
@@ -146,7 +148,7 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     operator = Operator(problem, out_of_core=out_of_core) if problem is not None else None
     try:
         warm = starts(problem) if starts is not None and problem is not None else None
-        states, elastic_s = equilibria(sim, scene.poses, scene.elastic, operator, warm,
+        states, elastic_s = equilibria(sim, poses, scene.elastic, operator, warm,
                                        keep_factorisation=keep_factorisation,
                                        progress=progress)
         del warm
@@ -164,7 +166,7 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
         raise
     solver = LinearSolver("electro_", out_of_core)
     try:
-        results = capacitances(sim, scene.poses, states, elastic_s, solver, keep_fields=keep_fields, progress=progress,
+        results = capacitances(sim, poses, states, elastic_s, solver, keep_fields=keep_fields, progress=progress,
                                maxwell=maxwell)
     finally:
         solver.destroy()
@@ -301,16 +303,18 @@ def element_of(settings: MeshSettings, order: int | None = None) -> tuple[int, s
 
 
 def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None, transfer: bool = True,
-                  elastic_mesh: LayeredMesh | None = None):
-    """The elastic problem the scene's poses need (``None`` if every pose is free) on the
-    scene's elastic mesh (or ``elastic_mesh``), and the transfer to ``mesh``'s vertices
-    (``None`` when shared or not asked for: :func:`elastic_transfer` builds it later)."""
-    if all(p.kind == "free" for p in scene.poses):
+                  elastic_mesh: LayeredMesh | None = None, poses: Sequence | None = None):
+    """The elastic problem ``poses`` (default the scene's) need (``None`` if every pose is
+    free) on the scene's elastic mesh (or ``elastic_mesh``), and the transfer to
+    ``mesh``'s vertices (``None`` when shared or not asked for: :func:`elastic_transfer`
+    builds it later)."""
+    poses = scene.poses if poses is None else poses
+    if all(p.kind == "free" for p in poses):
         return None, None
     order = order or scene.elastic.order
-    _warn_p1_clamped_stretch(scene, order)
-    _warn_p1_bending(scene, order)
-    problem = build_problem(elastic_mesh or mesh_elastic(scene, mesh), scene.layers, order)
+    _warn_p1_clamped_stretch(scene, order, poses)
+    _warn_p1_bending(scene, order, poses)
+    problem = build_problem(elastic_mesh or mesh_elastic(scene, mesh, poses), scene.layers, order)
     return problem, elastic_transfer(problem, mesh) if transfer else None
 
 
@@ -325,12 +329,12 @@ def elastic_transfer(problem: ElasticProblem | None, mesh: LayeredMesh):
 _P1_WARNED: set[tuple[str, str]] = set()
 
 
-def _warn_p1_clamped_stretch(scene: Scene, order: int) -> None:
+def _warn_p1_clamped_stretch(scene: Scene, order: int, poses) -> None:
     """P1 tets stiffen clamped large stretches (locking): say so instead of staying
     silent, once per scene and pose in a process (an optimisation rebuilds it often)."""
     if order != 1:
         return
-    for pose in scene.poses:
+    for pose in poses:
         if getattr(pose, "grips", None) == "clamp" and max(abs(s - 1.0) for s in pose.stretch) >= 0.3:
             if (scene.path, pose.name) in _P1_WARNED:
                 continue
@@ -347,14 +351,14 @@ def _warn_p1_clamped_stretch(scene: Scene, order: int) -> None:
 GLUED_P1_EDGE_MM = 2.5
 
 
-def _warn_p1_bending(scene: Scene, order: int) -> None:
+def _warn_p1_bending(scene: Scene, order: int, poses) -> None:
     """P1 tets lock in a thin stack bent by a ball or glued onto a curved object: the
     pose-to-pose gains read high (poke) or low (bend). Say so once per scene in a process;
     glued poses only on an elastic mesh coarser than :data:`GLUED_P1_EDGE_MM`."""
     if order != 1 or (scene.path, "bending") in _P1_WARNED:
         return
     fine = scene.elastic.mesh == "own" and scene.elastic.edge_length_mm <= GLUED_P1_EDGE_MM
-    bending = [p.name for p in scene.poses if p.kind == "poke" or (p.kind == "glue" and not fine)]
+    bending = [p.name for p in poses if p.kind == "poke" or (p.kind == "glue" and not fine)]
     if bending:
         _P1_WARNED.add((scene.path, "bending"))
         log.warning("%s: P1 elements lock where the sheet bends (poses %s): a 5 mm ball's gain reads +22-48 %% "

@@ -294,9 +294,9 @@ def estimate_electrostatic(scene: Scene) -> SizeEstimate:
     return replace(estimate, drivers=(first,) + estimate.drivers[1:])
 
 
-def estimate_elastic(scene: Scene) -> SizeEstimate | None:
-    """The size of :func:`mscap.mesh.layered.mesh_elastic`'s own mesh (``None`` when the
-    elastic problem is on the electrostatic mesh)."""
+def estimate_elastic(scene: Scene, poses=None) -> SizeEstimate | None:
+    """The size of :func:`mscap.mesh.layered.mesh_elastic`'s own mesh for ``poses`` (default
+    the scene's; ``None`` when the elastic problem is on the electrostatic mesh)."""
     from dataclasses import replace
 
     from mscap.mesh.layered import elastic_sizes
@@ -306,7 +306,7 @@ def estimate_elastic(scene: Scene) -> SizeEstimate | None:
         return None
     h = el.edge_length_mm
     if _finite(h) and h > 0:
-        settings = elastic_sizes(scene)
+        settings = elastic_sizes(scene, poses)
     else:  # the estimate names the bad key
         settings = replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=h, fringe_distance_mm=0.0, zones=())
     slabs = el.elements_through_thickness or 5 * _count(scene.mesh.elements_per_layer)

@@ -277,12 +277,12 @@ def elastic_layout(layout: Layout, sheet_outline_mm: np.ndarray, spacing_mm: flo
     return coarse
 
 
-def elastic_sizes(scene: Scene) -> MeshSettings:
+def elastic_sizes(scene: Scene, poses=None) -> MeshSettings:
     """The 2D sizes of the elastic mesh of its own: ``[elastic] edge_length_mm`` (outlines:
     ``edge_length_outline_mm``, default half), no fringe grading; P1 refines under the balls
     as the electrostatic mesh does (its ``zones``), P2 under the balls and along the held
     edges where :func:`mscap.scene.sizing.refines_pokes`
-    (:func:`~mscap.scene.sizing.p2_poke_refinement`)."""
+    (:func:`~mscap.scene.sizing.p2_poke_refinement`) of ``poses`` (default the scene's)."""
     from dataclasses import replace
 
     from mscap.scene.sizing import p2_poke_refinement, refines_pokes
@@ -292,27 +292,29 @@ def elastic_sizes(scene: Scene) -> MeshSettings:
     outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
     zones, strips = scene.mesh.zones, ()
     if settings.order != 1:
-        zones, strips = p2_poke_refinement(scene.poses, scene.sheet_outline_mm, h) if refines_pokes(scene) \
+        poses = scene.poses if poses is None else poses
+        zones, strips = p2_poke_refinement(poses, scene.sheet_outline_mm, h) if refines_pokes(scene) \
             else ((), ())
     return replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0,
                    zones=zones, strips=strips)
 
 
 @timed("meshing")
-def mesh_elastic(scene: Scene, mesh: LayeredMesh) -> LayeredMesh:
+def mesh_elastic(scene: Scene, mesh: LayeredMesh, poses=None) -> LayeredMesh:
     """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
     "shared"``, else a triangulation with the outlines embedded (:func:`elastic_layout`),
     so every tet lies inside or outside a plate, at ``edge_length_mm`` (outlines:
     ``edge_length_outline_mm``, default half), extruded in ``elements_through_thickness``
-    even slabs (0: the levels of ``mesh``)."""
+    even slabs (0: the levels of ``mesh``), refined for ``poses`` (default the scene's,
+    :func:`elastic_sizes`)."""
     from mscap.mesh.budget import check_fits, estimate_elastic
     from mscap.mesh.triangulate import triangulate
 
     settings = scene.elastic
     if settings.mesh == "shared":
         return mesh
-    check_fits(estimate_elastic(scene), scene.path)  # before gmsh
-    sizes = elastic_sizes(scene)
+    check_fits(estimate_elastic(scene, poses), scene.path)  # before gmsh
+    sizes = elastic_sizes(scene, poses)
     mesh2d = triangulate(scene.sheet_outline_mm, elastic_layout(scene.layout, scene.sheet_outline_mm,
                                                                 sizes.edge_length_outline_mm), sizes)
     return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,

@@ -701,13 +701,15 @@ def read_multistart(data: dict, path: str) -> MultistartSettings:
     return multistart
 
 
-def check_designable(scene: Scene) -> None:
+def check_designable(scene: Scene, poses=None) -> None:
     """What designing a scene needs beyond loading it: valid ``[optimizer]`` settings
-    (also for a scene whose settings were replaced in code) and at least two poses."""
+    (also for a scene whose settings were replaced in code) and at least two design poses
+    (``poses``, default the scene's)."""
     check_optimizer(scene.path, scene.optimizer, scene.calibration)
-    if len(scene.poses) < 2:
+    poses = scene.poses if poses is None else poses
+    if len(poses) < 2:
         raise SceneError(scene.path, "poses", f"the design objective compares poses: need at least 2, "
-                         f"got {len(scene.poses)}")
+                         f"got {len(poses)}")
 
 
 def select_poses(scene: Scene, names: list[str]) -> Scene:

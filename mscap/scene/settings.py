@@ -415,9 +415,6 @@ class Scene:
     source: str
     calibration: CalibrationSettings | None = None
     fabrication: FabricationSettings = FabricationSettings()
-    #: Set by :func:`mscap.design.readback.design_scene` when the poses are design poses from the
-    #: calibration family (a :class:`mscap.design.readback.DesignFamily`).
-    design_family: object = None
 
     @property
     def thickness_mm(self) -> float:

@@ -64,11 +64,12 @@ def finer(scene: Scene):
 OUT_OF_CORE_ABOVE_BYTES = 500e6
 
 
-def out_of_core(scene: Scene) -> bool:
-    """Whether :func:`estimate_error` factorises ``scene`` (already :func:`finer`) out of core."""
+def out_of_core(scene: Scene, poses=None) -> bool:
+    """Whether :func:`estimate_error` factorises ``scene`` (already :func:`finer`) for
+    ``poses`` (default its own) out of core."""
     from mscap.mesh import budget
 
-    sizes = (budget.estimate_electrostatic(scene), budget.estimate_elastic(scene))
+    sizes = (budget.estimate_electrostatic(scene), budget.estimate_elastic(scene, poses))
     return bool(max(size.memory_bytes for size in sizes if size is not None) > OUT_OF_CORE_ABOVE_BYTES)
 
 
@@ -117,9 +118,10 @@ class Equilibria:
 
 
 def estimate_error(scene: Scene, layout, capacitance_pF: np.ndarray,
-                   warm: Equilibria | None = None) -> ErrorEstimate:
+                   warm: Equilibria | None = None, poses=None) -> ErrorEstimate:
     """Simulate ``layout`` on :func:`finer` ``(scene)`` and compare with
-    ``capacitance_pF`` (the same layout's capacitances at the scene's own settings).
+    ``capacitance_pF`` (the same layout's capacitances at the scene's own settings), over
+    ``poses`` (the design poses; default the scene's).
 
     ``warm``: the run's equilibria, interpolated onto the finer mesh as Newton starts
     (one load step instead of the pose's load path; the same equilibria to the Newton
@@ -129,8 +131,8 @@ def estimate_error(scene: Scene, layout, capacitance_pF: np.ndarray,
 
     start = time.perf_counter()
     fine_scene = replace(finer(scene), layout=layout)
-    sim = simulate(fine_scene, keep_fields=False, out_of_core=out_of_core(fine_scene),
-                   starts=None if warm is None else warm.on)
+    sim = simulate(fine_scene, keep_fields=False, out_of_core=out_of_core(fine_scene, poses),
+                   starts=None if warm is None else warm.on, poses=poses)
     fine = sim.capacitance_pF
     return ErrorEstimate(fine, relative_difference(capacitance_pF, fine), min_pairwise_l1(fine),
                          time.perf_counter() - start)

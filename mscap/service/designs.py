@@ -127,15 +127,17 @@ class OptimizeOutput:
 
 def write_optimize_output(directory, scene: Scene, initial, result, seed: int, init: str) -> dict:
     """Write :data:`OPTIMIZE_FILES` of one start (initial layout ``initial``, an
-    ``OptimizeResult``) of the design scene ``scene`` to ``directory``; returns the summary.
+    ``OptimizeResult``) of ``scene`` to ``directory``; returns the summary. The tables' rows
+    are the design poses (``result.design.poses``).
     With a design family the summary holds the read-back bound before and after."""
     from mscap.design.readback import read_back_estimate
     from mscap.outputs import output_directory, replace_csv, replace_text
 
     out = output_directory(directory, "optimize -o")
     final = result.layout
-    bound = read_back_estimate(scene)
-    poses = [p.name for p in scene.poses]
+    designed = result.design.designed
+    bound = read_back_estimate(scene, designed)
+    poses = list(designed.names)
     # Each file replaced, not written through: a link planted under its name is not followed.
     replace_text(out / "outlines.json", json.dumps(
         {"scene": scene.path, "min_gap_mm": scene.min_gap_mm,

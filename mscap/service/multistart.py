@@ -111,7 +111,8 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     layout = None
     try:
         layout, design = start_design(scene, config.k, config.seed, config.init)
-        scene = design.scene  # its design poses (mscap.design.readback.design_scene)
+        scene = design.scene  # with the start's layout, its meshes sized for it (with_layout)
+        designed = design.designed  # the design poses and their family (mscap.design.readback.design_poses)
         rule, kind, verdicts = PruneRule.from_settings(scene.multistart), score_kind(scene), []
 
         def checkpoint(row) -> bool:
@@ -127,11 +128,11 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         del design  # optimize() holds the only reference: the first remesh frees the design
         result = optimize(handed.pop(), max_iterations=max_iterations,
                           checkpoint=checkpoint if ask is not None else None)
-        record = replace(record_from_result(config.k, config.seed, config.init, layout, result, scene.poses,
+        record = replace(record_from_result(config.k, config.seed, config.init, layout, result, designed.poses,
                                             time.perf_counter() - start, rank), cpu_s=meter.cpu_s)
         if result.reason == "pruned":
             record = replace(record, status="pruned", reason=verdicts[-1].reason(rule))
-        bound = read_back_estimate(scene)
+        bound = read_back_estimate(scene, designed)
         if bound is not None:
             record = replace(record, bound_mm=bound.value(record.final_capacitance_pF),
                              initial_bound_mm=bound.value(record.initial_capacitance_pF))
@@ -147,12 +148,13 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
                                      time.perf_counter() - start, rank, layout, getattr(exc, "history", ())),
                        cpu_s=meter.cpu_s, peak_rss_mb=meter.peak_rss_mb)
     if scene.multistart.error_estimate and not record.pruned:
-        record = _with_check(scene, record, final, equilibria, bound, ask, share)
+        record = _with_check(scene, record, final, equilibria, bound, ask, share, designed.poses)
     return replace(record, peak_rss_mb=meter.peak_rss_mb)  # the start's and its check's
 
 
-def _with_check(scene: Scene, record, final, equilibria, bound, ask, share=None):
-    """``record`` with its finer-mesh check (``scene``: the start's design scene), unless
+def _with_check(scene: Scene, record, final, equilibria, bound, ask, share=None, poses=None):
+    """``record`` with its finer-mesh check (``scene``: the start's, with its layout; over
+    its design ``poses``), unless
     the master says a finished run of its k beats it; a failed check leaves NaN. ``share``:
     the leads' share in the record's capacitances (routed during the optimisation), held
     on the finer mesh too, so that the check measures the plates' discretisation alone."""
@@ -168,7 +170,7 @@ def _with_check(scene: Scene, record, final, equilibria, bound, ask, share=None)
     cpu = time.process_time()
     try:
         plates = record.final_capacitance_pF if share is None else record.final_capacitance_pF - share
-        check = estimate_error(scene, final, plates, equilibria)
+        check = estimate_error(scene, final, plates, equilibria, poses)
     except Exception as exc:  # the run stands; only its accuracy is unknown
         log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
                     record.id, type(exc).__name__, exc)
@@ -197,25 +199,26 @@ def run_check(scene: Scene, record, ask: Callable | None = None):
     """``record`` (a stored run) with the finer-mesh check its start would have ended with,
     from a cold start on the finer mesh (the run's equilibria are gone). The master is
     asked first, as a start asks: a run beaten meanwhile stays unchecked."""
-    from mscap.design.readback import design_scene
+    from mscap.design.readback import design_poses
     from mscap.design.starts import start_layout
     from mscap.geometry.layout import Layout
     from mscap.scene.sizing import with_layout
 
     release_freed_memory()
     meter = Meter()
-    start_scene = design_scene(with_layout(scene, start_layout(scene, record.k, record.seed, record.init)))
+    start_scene = with_layout(scene, start_layout(scene, record.k, record.seed, record.init))
+    designed = design_poses(scene)
     share = None  # the leads' share in the stored capacitances is not stored: routed again
     if start_scene.fabrication.route_during_optimisation:
         from mscap.errors import FabricationError
         from mscap.fabrication.during import wiring_offset
 
         try:
-            share = wiring_offset(start_scene, record.final_outlines).offset_pF
+            share = wiring_offset(start_scene, record.final_outlines, poses=designed.poses).offset_pF
         except FabricationError as exc:
             log.warning("start %s: its design no longer routes (%s); checked as plates alone", record.id, exc)
     checked = _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None,
-                          read_back_estimate(start_scene), ask, share)
+                          read_back_estimate(start_scene, designed), ask, share, designed.poses)
     # The larger of the run's peak (an earlier session's; NaN if not stored) and the check's here.
     peak = meter.peak_rss_mb if not record.peak_rss_mb > meter.peak_rss_mb else record.peak_rss_mb
     return replace(checked, peak_rss_mb=peak)

@@ -13,7 +13,7 @@ import pytest
 
 from mscap.calibration.reconstruction import fit
 from mscap.design.objective import capacitance_term
-from mscap.design.readback import (DesignFamily, MapNoise, ReadbackError, ReconstructionBound, design_scene,
+from mscap.design.readback import (DesignFamily, MapNoise, ReadbackError, ReconstructionBound, design_poses,
                                    grid_derivatives, read_back_estimate, reading_variance)
 from mscap.errors import SceneError
 from mscap.scene import load_scene
@@ -138,7 +138,7 @@ def test_a_map_that_reads_nothing_has_no_slope():
 def test_the_scene_key_and_its_errors(tmp_path):
     text = open("jobs/wrist_quick.toml").read().replace('distance = "reconstruction"', 'distance = "readback"')
     (tmp_path / "w.toml").write_text(text)
-    scene = design_scene(load_scene(tmp_path / "w.toml"))
+    scene = load_scene(tmp_path / "w.toml")
     estimate = read_back_estimate(scene)
     assert isinstance(estimate, ReadbackError) and isinstance(capacitance_term(scene).term, ReadbackError)
     assert capacitance_term(scene).weight == -1.0
@@ -149,7 +149,7 @@ def test_the_scene_key_and_its_errors(tmp_path):
     with pytest.raises(SceneError, match=r"optimizer\.distance.*thin-plate spline.*cubic"):
         load_scene(tmp_path / "cubic.toml")
     # the scenes shipped with "reconstruction" keep the bound as their estimate
-    assert isinstance(read_back_estimate(design_scene(load_scene("jobs/wrist_quick.toml"))), ReconstructionBound)
+    assert isinstance(read_back_estimate(load_scene("jobs/wrist_quick.toml")), ReconstructionBound)
 
 
 def test_a_readback_scene_is_scored_pruned_and_reported_in_mm(tmp_path):

@@ -16,7 +16,7 @@ from mscap.scene.calibration import NoiseModel
 from mscap.errors import GeometryError, SceneError
 from mscap.design.objective import PlateAreaBarrier, capacitance_term
 from mscap.design.readback import (DesignFamily, ProtocolDissimilarity, ReconstructionBound, _difference_matrix,
-                            design_scene, grid_derivatives, difference_variance, reading_variance)
+                            design_poses, grid_derivatives, difference_variance, reading_variance)
 from mscap.scene import load_scene
 from mscap.service.selection import RunSummary, select
 from tests.scenes import check_gradient
@@ -149,12 +149,14 @@ def quick(name):
 
 
 def test_wrist_family_is_a_sub_grid_with_the_reference_and_exact_differences():
-    scene = design_scene(quick("wrist"))
-    fam = scene.design_family
+    scene = quick("wrist")
+    designed = design_poses(scene)
+    fam = designed.family
     assert [a.tolist() for a in fam.axes] == [[-25.0, 5.0, 40.0], [-15.0, 5.0, 20.0]]
-    assert scene.poses[0].name == "rest" and fam.reference_row == 0
-    assert scene.poses[1].name == "grid[flexion_deg=-25, deviation_deg=-15]"
-    assert len(scene.poses) == 10 and sorted(fam.rows) == list(range(1, 10))
+    assert designed.names[0] == "rest" and fam.reference_row == 0
+    assert designed.names[1] == "grid[flexion_deg=-25, deviation_deg=-15]"
+    assert len(designed.poses) == 10 and sorted(fam.rows) == list(range(1, 10))
+    assert len(scene.poses) == 9 and not hasattr(scene, "design_family")  # the scene stays as listed
     # the training grid's members: the sub-grid takes its first, middle and last values
     training = scene.calibration.training
     assert all(any(np.allclose(v, t) for t in training) for v in fam.values)
@@ -162,32 +164,31 @@ def test_wrist_family_is_a_sub_grid_with_the_reference_and_exact_differences():
     linear = fam.values @ np.array([2.0, -3.0])
     np.testing.assert_allclose(fam.derivative[0] @ linear, 2.0)
     np.testing.assert_allclose(fam.derivative[1] @ linear, -3.0)
-    assert design_scene(scene) is scene  # idempotent
 
 
 def test_equal_family_poses_share_a_row():
     # pneumatic: without a dent the ball's angle changes nothing, and the rest pose is the
     # uninflated one: 2 × 2 × 3 grid points, 2 × (1 + 3) distinct poses.
-    scene = design_scene(quick("pneumatic"))
-    assert len(scene.design_family.rows) == 12 and len(scene.poses) == 8
-    assert scene.design_family.reference_row == 0
+    designed = design_poses(quick("pneumatic"))
+    assert len(designed.family.rows) == 12 and len(designed.poses) == 8
+    assert designed.family.reference_row == 0
     # joystick: tilt 0 in any direction is the centre pose
-    scene = design_scene(quick("joystick"))
-    assert len(scene.design_family.rows) == 12 and len(scene.poses) == 9
-    assert (scene.design_family.rows[:4] == scene.design_family.reference_row).all()
+    designed = design_poses(quick("joystick"))
+    assert len(designed.family.rows) == 12 and len(designed.poses) == 9
+    assert (designed.family.rows[:4] == designed.family.reference_row).all()
 
 
 def test_family_settings_errors_name_the_key(tmp_path):
     scene = quick("wrist")
     opt = scene.optimizer
     with pytest.raises(SceneError, match="optimizer.family_grid"):
-        design_scene(dataclasses.replace(scene, optimizer=dataclasses.replace(opt, family_grid=(1,))))
+        design_poses(dataclasses.replace(scene, optimizer=dataclasses.replace(opt, family_grid=(1,))))
     with pytest.raises(SceneError, match="optimizer.family_grid.*only 8"):
-        design_scene(dataclasses.replace(scene, optimizer=dataclasses.replace(opt, family_grid=(3, 9))))
+        design_poses(dataclasses.replace(scene, optimizer=dataclasses.replace(opt, family_grid=(3, 9))))
     with pytest.raises(SceneError, match="optimizer.design_poses"):
-        design_scene(dataclasses.replace(scene, calibration=None))
+        design_poses(dataclasses.replace(scene, calibration=None))
     with pytest.raises(SceneError, match="optimizer.design_poses: unknown value 'some'"):
-        design_scene(dataclasses.replace(scene, optimizer=dataclasses.replace(opt, design_poses="some")))
+        design_poses(dataclasses.replace(scene, optimizer=dataclasses.replace(opt, design_poses="some")))
     listed = dataclasses.replace(scene, optimizer=dataclasses.replace(opt, design_poses="listed"))
     with pytest.raises(SceneError, match='design_poses = "family"'):
         capacitance_term(listed)
@@ -227,11 +228,11 @@ def test_both_keeps_the_listed_poses_and_adds_the_new_grid_poses():
     # The wrist's listed poses include the four corners of the 3 × 3 grid (the design
     # poses' combinations) and the rest pose: 9 listed + 5 new grid poses.
     scene = quick("wrist")
-    both = design_scene(dataclasses.replace(scene, optimizer=dataclasses.replace(scene.optimizer,
+    both = design_poses(dataclasses.replace(scene, optimizer=dataclasses.replace(scene.optimizer,
                                                                                  design_poses="both")))
-    names = [p.name for p in both.poses]
+    names = list(both.names)
     assert names[:9] == [p.name for p in scene.poses] and len(names) == 14
-    fam = both.design_family
+    fam = both.family
     assert fam.reference_row == 0
     corners = {names[fam.rows[i]] for i in (0, 2, 6, 8)}
     assert corners == {"extension_radial", "extension_ulnar", "flexion_radial", "flexion_ulnar"}
@@ -248,11 +249,11 @@ def test_a_poke_family_reconstructs_its_parameters():
     cal = CalibrationSettings(pose=template.name, parameters=("depth_mm",), training=depths, sequence=depths,
                               in_range=np.ones(5, bool), target="parameters", reference=rest.name)
     opt = dataclasses.replace(scene.optimizer, distance="reconstruction", design_poses="family", family_grid=(3,))
-    design = design_scene(dataclasses.replace(scene, calibration=cal, optimizer=opt))
-    assert [p.name for p in design.poses] == [rest.name, "grid[depth_mm=5]", "grid[depth_mm=9]", "grid[depth_mm=13]"]
+    design = design_poses(dataclasses.replace(scene, calibration=cal, optimizer=opt))
+    assert list(design.names) == [rest.name, "grid[depth_mm=5]", "grid[depth_mm=9]", "grid[depth_mm=13]"]
     assert [p.depth_mm for p in design.poses[1:]] == [5.0, 9.0, 13.0]
-    np.testing.assert_allclose(design.design_family.sensitivity, 1.0)
-    assert design.design_family.prior[0] == pytest.approx(12 / 8.0**2)
+    np.testing.assert_allclose(design.family.sensitivity, 1.0)
+    assert design.family.prior[0] == pytest.approx(12 / 8.0**2)
 
 
 def test_a_calibrated_scene_designs_for_read_back_by_default(tmp_path):

@@ -258,14 +258,13 @@ def test_a_choice_by_the_read_back_bound_is_checked_on_the_finer_mesh_bound():
 def test_a_read_back_start_stores_its_bound_on_the_finer_mesh():
     """``run_start`` on a scene designed for read-back: the finer-mesh bound is the scene's
     bound of the finer capacitances (wrist_quick, no optimiser step: about 6 s)."""
-    from mscap.design.readback import ReconstructionBound, design_scene
+    from mscap.design.readback import ReconstructionBound, design_poses
     from mscap.service.multistart import run_start
 
     scene = load_scene("jobs/wrist_quick.toml")
     record = run_start(scene, configurations(scene)[0], 0, 0, None)
     assert record.ok and record.checked, record.error
-    designed = design_scene(scene)
-    bound = ReconstructionBound(designed.design_family, designed.optimizer.tau_mm)
+    bound = ReconstructionBound(design_poses(scene).family, scene.optimizer.tau_mm)
     assert record.finer_bound_mm == bound.value(record.finer_capacitance_pF)
     assert record.bound_mm == bound.value(record.final_capacitance_pF)
     # The bound is a ratio of signal to noise: it moves with the mesh far less than C does.
