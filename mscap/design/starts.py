@@ -41,7 +41,7 @@ import numpy as np
 
 from mscap.errors import GeometryError
 from mscap.geometry import polygons as geometry
-from mscap.geometry.initial import (LAYOUT_INITS, initial_layout, plate_size_mm, square_fits, squares_at,
+from mscap.geometry.initial import (LAYOUT_INITS, Placement, initial_layout, square_fits, squares_at,
                                     valid_layout)
 from mscap.geometry.layout import Layout
 
@@ -181,13 +181,14 @@ def sensitivity_layout(scene: Scene, k: int, seed: int, smap: SensitivityMap | N
     score = smap.area * strength**2
     sites = np.array([np.average(smap.points[labels == c], axis=0, weights=score[labels == c] + 1e-300)
                       for c in range(k)])
-    layout = squares_at(scene, sites, clearance, HOT_SPOT_SIZES)  # on the hot spots, smaller until they fit
+    placement = Placement.of(scene)
+    layout = squares_at(placement, sites, clearance, HOT_SPOT_SIZES)  # on the hot spots, smaller until they fit
     if layout is not None:
         return layout
     # Hot spots too close for plates half the mean size: each cluster's plate on its
     # strongest triangle that leaves room, the clusters taken strongest first.
     order = np.argsort([-weight[labels == c].sum() for c in range(k)], kind="stable")
-    gap, sheet, size = clearance * scene.min_gap_mm, scene.sheet_outline_mm, plate_size_mm(scene)
+    gap, sheet, size = clearance * placement.min_gap_mm, placement.sheet_outline_mm, placement.size_mm
     for _ in range(60):
         placed: dict[int, np.ndarray] = {}
         for c in order:
@@ -201,7 +202,7 @@ def sensitivity_layout(scene: Scene, k: int, seed: int, smap: SensitivityMap | N
                 break
         if len(placed) == k:
             layout = Layout(tuple(placed[c] for c in range(k)))
-            if valid_layout(layout, scene, clearance):
+            if valid_layout(layout, placement, clearance):
                 return layout
         size *= 0.9
     raise GeometryError(f"no valid squares at the sensitivity sites of {scene.path} for k = {k}")

@@ -312,8 +312,8 @@ def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None, tra
     if all(p.kind == "free" for p in poses):
         return None, None
     order = order or scene.elastic.order
-    _warn_p1_clamped_stretch(scene, order, poses)
-    _warn_p1_bending(scene, order, poses)
+    _warn_p1_clamped_stretch(scene.path, order, poses)
+    _warn_p1_bending(scene.path, scene.name, order, poses, scene.elastic)
     problem = build_problem(elastic_mesh or mesh_elastic(scene, mesh, poses), scene.layers, order)
     return problem, elastic_transfer(problem, mesh) if transfer else None
 
@@ -329,16 +329,16 @@ def elastic_transfer(problem: ElasticProblem | None, mesh: LayeredMesh):
 _P1_WARNED: set[tuple[str, str]] = set()
 
 
-def _warn_p1_clamped_stretch(scene: Scene, order: int, poses) -> None:
+def _warn_p1_clamped_stretch(path: str, order: int, poses) -> None:
     """P1 tets stiffen clamped large stretches (locking): say so instead of staying
-    silent, once per scene and pose in a process (an optimisation rebuilds it often)."""
+    silent, once per scene file ``path`` and pose in a process (an optimisation rebuilds it often)."""
     if order != 1:
         return
     for pose in poses:
         if getattr(pose, "grips", None) == "clamp" and max(abs(s - 1.0) for s in pose.stretch) >= 0.3:
-            if (scene.path, pose.name) in _P1_WARNED:
+            if (path, pose.name) in _P1_WARNED:
                 continue
-            _P1_WARNED.add((scene.path, pose.name))
+            _P1_WARNED.add((path, pose.name))
             log.warning("pose %s: P1 elements overestimate the capacitance of a clamped stretch "
                         "this large (grid3x3 at 100 %%: +8 %% at 5 mm, +1.3 %% at 1.5 mm elastic edges); "
                         "consider [elastic] order = 2 (docs/elastic.md)", pose.name, extra={"advice": True})
@@ -351,21 +351,22 @@ def _warn_p1_clamped_stretch(scene: Scene, order: int, poses) -> None:
 GLUED_P1_EDGE_MM = 2.5
 
 
-def _warn_p1_bending(scene: Scene, order: int, poses) -> None:
+def _warn_p1_bending(path: str, name: str, order: int, poses, elastic) -> None:
     """P1 tets lock in a thin stack bent by a ball or glued onto a curved object: the
-    pose-to-pose gains read high (poke) or low (bend). Say so once per scene in a process;
-    glued poses only on an elastic mesh coarser than :data:`GLUED_P1_EDGE_MM`."""
-    if order != 1 or (scene.path, "bending") in _P1_WARNED:
+    pose-to-pose gains read high (poke) or low (bend). Say so once per scene file ``path``
+    (scene ``name``) in a process; glued poses only on an elastic mesh (``[elastic]``
+    settings ``elastic``) coarser than :data:`GLUED_P1_EDGE_MM`."""
+    if order != 1 or (path, "bending") in _P1_WARNED:
         return
-    fine = scene.elastic.mesh == "own" and scene.elastic.edge_length_mm <= GLUED_P1_EDGE_MM
+    fine = elastic.mesh == "own" and elastic.edge_length_mm <= GLUED_P1_EDGE_MM
     bending = [p.name for p in poses if p.kind == "poke" or (p.kind == "glue" and not fine)]
     if bending:
-        _P1_WARNED.add((scene.path, "bending"))
+        _P1_WARNED.add((path, "bending"))
         log.warning("%s: P1 elements lock where the sheet bends (poses %s): a 5 mm ball's gain reads +22-48 %% "
                     "and a glued 15 mm cylinder's -7-11 %% at nu = 0.47-0.49 with 5 mm elements, P2 (refined under "
                     "the ball and along the held edges) +1-3 %% (+8-16 %% against +2 %% on jobs/poking.toml); "
                     "consider [elastic] order = 2 (docs/elastic.md)",
-                    scene.name, ", ".join(bending), extra={"advice": True})
+                    name, ", ".join(bending), extra={"advice": True})
 
 
 def release_freed_memory() -> None:

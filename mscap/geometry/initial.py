@@ -16,6 +16,7 @@ barrier starts at zero); the result always passes :func:`mscap.geometry.layout.c
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,8 +28,8 @@ from mscap.geometry.layout import Layout, check_layout
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["LAYOUT_INITS", "initial_layout", "random_layout", "lloyd_layout", "lloyd_points", "plate_size_mm",
-           "squares_at", "square_fits", "valid_layout"]
+__all__ = ["LAYOUT_INITS", "Placement", "initial_layout", "random_layout", "lloyd_layout", "lloyd_points",
+           "plate_size_mm", "squares_at", "square_fits", "valid_layout"]
 
 #: Every ``init`` :func:`initial_layout` accepts (``mscap optimize --init``); the
 #: multi-start schedules the seeded ones, :data:`mscap.service.selection.MULTISTART_INITS`.
@@ -40,10 +41,26 @@ def plate_size_mm(scene: Scene) -> float:
     return float(np.sqrt(np.abs(scene.layout.areas_mm2()).mean()))
 
 
-def valid_layout(layout: Layout, scene: Scene, clearance: float) -> bool:
+@dataclass(frozen=True)
+class Placement:
+    """What placing initial squares takes of a scene: its sheet outline, the minimum gap
+    between plates (mm), the squares' side (mm; the scene's mean plate's) and its file (for
+    messages)."""
+
+    sheet_outline_mm: np.ndarray
+    min_gap_mm: float
+    size_mm: float
+    path: str = ""
+
+    @classmethod
+    def of(cls, scene: Scene) -> "Placement":
+        return cls(scene.sheet_outline_mm, scene.min_gap_mm, plate_size_mm(scene), scene.path)
+
+
+def valid_layout(layout: Layout, placement: Placement, clearance: float) -> bool:
     """Does ``layout`` pass :func:`check_layout` with ``clearance × min_gap_mm``?"""
     try:
-        check_layout(layout, scene.sheet_outline_mm, clearance * scene.min_gap_mm)
+        check_layout(layout, placement.sheet_outline_mm, clearance * placement.min_gap_mm)
     except GeometryError:
         return False
     return True
@@ -61,14 +78,14 @@ def square_fits(square: np.ndarray, placed: list, sheet: np.ndarray, gap: float)
     return True
 
 
-def random_layout(scene: Scene, k: int, seed: int, clearance: float = 2.0, attempts: int = 20,
+def random_layout(placement: Placement, k: int, seed: int, clearance: float = 2.0, attempts: int = 20,
                   tries_per_shape: int = 50) -> Layout:
     """k non-overlapping squares by seeded rejection sampling."""
     rng = np.random.default_rng(seed)
-    sheet = scene.sheet_outline_mm
+    sheet = placement.sheet_outline_mm
     lo, hi = sheet.min(axis=0), sheet.max(axis=0)
-    gap = clearance * scene.min_gap_mm
-    size = plate_size_mm(scene)
+    gap = clearance * placement.min_gap_mm
+    size = placement.size_mm
     for _ in range(20):
         for _ in range(attempts):
             placed = []
@@ -81,12 +98,12 @@ def random_layout(scene: Scene, k: int, seed: int, clearance: float = 2.0, attem
                     placed.append(square)
                     if len(placed) == k:
                         layout = Layout(tuple(placed))
-                        if valid_layout(layout, scene, clearance):
+                        if valid_layout(layout, placement, clearance):
                             return layout
                         break
             # stuck: restart this layout
         size *= 0.9
-    raise GeometryError(f"could not place {k} squares in the sheet of {scene.path} by rejection sampling")
+    raise GeometryError(f"could not place {k} squares in the sheet of {placement.path} by rejection sampling")
 
 
 def lloyd_points(sheet: np.ndarray, k: int, seed: int, iterations: int = 100, samples: int = 100) -> np.ndarray:
@@ -109,21 +126,21 @@ def lloyd_points(sheet: np.ndarray, k: int, seed: int, iterations: int = 100, sa
     return sites
 
 
-def lloyd_layout(scene: Scene, k: int, seed: int, clearance: float = 2.0) -> Layout:
+def lloyd_layout(placement: Placement, k: int, seed: int, clearance: float = 2.0) -> Layout:
     """Squares at the centroids of a seeded Lloyd relaxation, shrunk until valid."""
-    layout = squares_at(scene, lloyd_points(scene.sheet_outline_mm, k, seed), clearance)
+    layout = squares_at(placement, lloyd_points(placement.sheet_outline_mm, k, seed), clearance)
     if layout is None:
-        raise GeometryError(f"no valid squares at the Lloyd centroids of {scene.path} for k = {k}")
+        raise GeometryError(f"no valid squares at the Lloyd centroids of {placement.path} for k = {k}")
     return layout
 
 
-def squares_at(scene: Scene, sites: np.ndarray, clearance: float = 2.0, sizes: int = 60) -> Layout | None:
-    """Squares of the scene's mean plate size centred on ``sites`` ``(k, 2)``, shrunk by
-    10 % until the layout is valid, trying at most ``sizes`` sizes (``None`` if none is)."""
-    size = plate_size_mm(scene)
+def squares_at(placement: Placement, sites: np.ndarray, clearance: float = 2.0, sizes: int = 60) -> Layout | None:
+    """Squares of the placement's size centred on ``sites`` ``(k, 2)``, shrunk by 10 %
+    until the layout is valid, trying at most ``sizes`` sizes (``None`` if none is)."""
+    size = placement.size_mm
     for _ in range(sizes):
         layout = Layout(tuple(geometry.square(c, size) for c in sites))
-        if valid_layout(layout, scene, clearance):
+        if valid_layout(layout, placement, clearance):
             return layout
         size *= 0.9
     return None
@@ -138,7 +155,7 @@ def initial_layout(scene: Scene, k: int | None, seed: int, init: str) -> Layout:
     if k is None or k < 1:
         raise GeometryError(f"k must be a positive number of capacitors, got {k!r}")
     if init == "random":
-        return random_layout(scene, k, seed)
+        return random_layout(Placement.of(scene), k, seed)
     if init == "lloyd":
-        return lloyd_layout(scene, k, seed)
+        return lloyd_layout(Placement.of(scene), k, seed)
     raise GeometryError(f"unknown init {init!r}; expected one of {', '.join(LAYOUT_INITS)}")

@@ -269,15 +269,15 @@ def _estimate(sheet_outline_mm, plate_area_mm2, perimeter_mm, n_plates, settings
     return SizeEstimate(problem, triangles, vertices, tets, unknowns, memory, tuple(drivers))
 
 
-def _plates(scene: Scene) -> tuple[float, float, int]:
-    """Total area and outline length of the scene's plates, and their count."""
+def _plates(layout) -> tuple[float, float, int]:
+    """Total area and outline length of ``layout``'s plates, and their count."""
     area = perimeter = 0.0
-    for o in scene.layout.outlines:
+    for o in layout.outlines:
         o = np.asarray(o, dtype=float)
         nxt = np.roll(o, -1, axis=0)
         area += abs(0.5 * float(np.sum(o[:, 0] * nxt[:, 1] - nxt[:, 0] * o[:, 1])))
         perimeter += float(np.sum(np.hypot(*(nxt - o).T)))
-    return area, perimeter, len(scene.layout.outlines)
+    return area, perimeter, len(layout.outlines)
 
 
 def estimate_electrostatic(scene: Scene) -> SizeEstimate:
@@ -285,7 +285,7 @@ def estimate_electrostatic(scene: Scene) -> SizeEstimate:
     from dataclasses import replace
 
     m = scene.mesh
-    estimate = estimate_mesh(scene.sheet_outline_mm, *_plates(scene), m, 5 * _count(m.elements_per_layer), m.order,
+    estimate = estimate_mesh(scene.sheet_outline_mm, *_plates(scene.layout), m, 5 * _count(m.elements_per_layer), m.order,
                              "electrostatic", scene.path,
                              {"slabs": f"[mesh] elements_per_layer = {m.elements_per_layer!r}"})
     if m.tolerance is None:
@@ -314,7 +314,7 @@ def estimate_elastic(scene: Scene, poses=None) -> SizeEstimate | None:
             "slabs": f"[elastic] elements_through_thickness = {el.elements_through_thickness!r}"
             if el.elements_through_thickness else f"[mesh] elements_per_layer = {scene.mesh.elements_per_layer!r}",
             "order": "[elastic] order"}
-    return estimate_mesh(scene.sheet_outline_mm, *_plates(scene), settings, slabs, el.order, "elastic", scene.path,
+    return estimate_mesh(scene.sheet_outline_mm, *_plates(scene.layout), settings, slabs, el.order, "elastic", scene.path,
                          keys, scene.layout.outlines)
 
 

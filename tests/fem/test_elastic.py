@@ -769,6 +769,7 @@ def test_p1_under_glue_is_warned_about_only_on_a_coarse_elastic_mesh(tmp_path, c
         path.write_text(to_toml(data))
         caplog.clear()
         for _ in range(2):
-            simulation._warn_p1_bending(load_scene(path), 1)
+            scene = load_scene(path)
+            simulation._warn_p1_bending(scene.path, scene.name, 1, scene.poses, scene.elastic)
         said = [r.getMessage() for r in caplog.records if "P1 elements lock where the sheet bends" in r.getMessage()]
         assert len(said) == warned and all("(poses bent)" in m for m in said), (edge, mesh, said)

@@ -305,8 +305,8 @@ def test_p1_clamped_large_stretch_warns(small_scene_dict, write_scene, caplog, o
                                   "grips": "clamp"}]
     scene = load_scene(write_scene(small_scene_dict))
     with caplog.at_level("WARNING", logger="mscap.fem.simulate"):
-        _warn_p1_clamped_stretch(scene, order)
-        _warn_p1_clamped_stretch(scene, order)      # once per scene and pose: optimisers rebuild
+        _warn_p1_clamped_stretch(scene.path, order, scene.poses)
+        _warn_p1_clamped_stretch(scene.path, order, scene.poses)      # once per scene and pose: optimisers rebuild
     assert caplog.text.count("pose pull: P1 elements overestimate") == int(warned)
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mscap.errors import GeometryError
-from mscap.geometry.initial import initial_layout, lloyd_points, plate_size_mm, random_layout
+from mscap.geometry.initial import Placement, initial_layout, lloyd_points, plate_size_mm, random_layout
 from mscap.geometry.layout import check_layout
 from mscap.scene import load_scene
 
@@ -52,4 +52,4 @@ def test_scene_init_and_errors(scene):
     with pytest.raises(GeometryError, match="k = 3"):
         initial_layout(scene, 3, 0, "scene")
     with pytest.raises(GeometryError, match="could not place"):
-        random_layout(scene, 400, 0, attempts=1, tries_per_shape=3)
+        random_layout(Placement.of(scene), 400, 0, attempts=1, tries_per_shape=3)
