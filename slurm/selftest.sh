@@ -4,10 +4,12 @@
 #   slurm/selftest.sh            skip (status 0, a "skipped:" line) where it cannot run
 #   slurm/selftest.sh --require  fail instead of skipping (.ci/run)
 #   slurm/selftest.sh --keep     keep the cluster's directory (config, logs, results)
+#   slurm/selftest.sh --install  only install what it needs and exit (.ci/run, before make test)
 #
-# Needs root on Debian (apt-get installs slurmctld, slurmd, slurm-client, munge and
-# libpmix-dev, for srun --mpi=pmix, when missing) and no SLURM controller already running
-# here (a cluster's login node keeps its own SLURM untouched: the test skips). It writes a
+# Needs root on Debian with slurmctld, slurmd, slurm-client, munge and libpmix-dev (for srun
+# --mpi=pmix) installed: the self-test itself installs nothing (the test suite runs it), it
+# skips naming what is missing; --install apt-gets them. And no SLURM controller already
+# running here (a cluster's login node keeps its own SLURM untouched: the test skips). It writes a
 # slurm.conf for this host (all CPUs, one partition, proctrack/cgroup) into a temporary
 # directory, starts munged (on its own socket), slurmctld and slurmd, cancels its jobs and
 # stops the daemons by PID at the end, whatever happens.
@@ -24,10 +26,12 @@ set -euo pipefail
 
 REQUIRE=0
 KEEP=0
+INSTALL=0
 for a in "$@"; do
     case "$a" in
         --require) REQUIRE=1 ;;
         --keep) KEEP=1 ;;
+        --install) INSTALL=1 ;;
         -h|--help) sed -n '2,/^set -euo/p' "${BASH_SOURCE[0]}" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
         *) echo "selftest: unknown argument $a" >&2; exit 2 ;;
     esac
@@ -52,22 +56,26 @@ skip() {
 fail() { echo "selftest: FAILED: $*" >&2; exit 1; }
 say() { echo "selftest: $*"; }
 
-[[ "$(id -u)" == 0 ]] || skip "needs root (installs and starts SLURM daemons)"
+[[ "$(id -u)" == 0 ]] || skip "needs root (starts SLURM daemons)"
 command -v dpkg-query >/dev/null 2>&1 || skip "not a Debian system"
-[[ -x "$VENV/bin/mscap" ]] || skip "no mscap in $VENV (run make install first)"
-if pgrep -x slurmctld >/dev/null 2>&1; then
-    skip "a slurmctld already runs on this machine; the self-test builds its own cluster only where there is none"
-fi
-
 packages=(slurmctld slurmd slurm-client munge libpmix-dev)   # libpmix-dev: srun --mpi=pmix
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}\n' "$p" 2>/dev/null | grep -q '^install ok installed' || missing+=("$p")
 done
-if (( ${#missing[@]} )); then
-    say "installing ${missing[*]}"
-    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
-        "${missing[@]}"; } >/dev/null 2>&1 || skip "apt-get could not install ${missing[*]}"
+if (( INSTALL )); then
+    if (( ${#missing[@]} )); then
+        say "installing ${missing[*]}"
+        { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+            "${missing[@]}"; } >/dev/null 2>&1 || fail "apt-get could not install ${missing[*]}"
+    fi
+    say "installed: ${packages[*]}"
+    exit 0
+fi
+(( ${#missing[@]} == 0 )) || skip "not installed: ${missing[*]} (slurm/selftest.sh --install installs them; .ci/run does)"
+[[ -x "$VENV/bin/mscap" ]] || skip "no mscap in $VENV (run make install first)"
+if pgrep -x slurmctld >/dev/null 2>&1; then
+    skip "a slurmctld already runs on this machine; the self-test builds its own cluster only where there is none"
 fi
 [[ -r /etc/munge/munge.key ]] || skip "no munge key at /etc/munge/munge.key"
 

@@ -152,8 +152,8 @@ merge_cmd="set -eu; cd $(q "$MSCAP_REPO"); if [ -x $(q "$MSCAP_VENV/bin/mscap") 
 (( calibrates )) && merge_cmd+="; mscap run $(q "$SCENE") -o $(q "$MERGED")"
 
 merge_out="$(sbatch --parsable --dependency="afterany:$array_id" --job-name=mscap-merge \
-    --ntasks=1 --time=00:30:00 --output="mscap-merge-%j.out" --wrap="$merge_cmd")"
+    --ntasks=1 --time=00:30:00 --output="$OUTDIR/mscap-merge-%j.out" --wrap="$merge_cmd")"
 merge_id="$(job_id "$merge_out")"
 
 echo "array job $array_id: --array=$array, ${#parts[@]} parts in $OUTDIR"
-echo "merge job $merge_id: after job $array_id ends, mscap merge -> $MERGED$( (( calibrates )) && echo ", then mscap run calibrates its best designs")"
+echo "merge job $merge_id: after job $array_id ends, mscap merge -> $MERGED (log $OUTDIR/mscap-merge-$merge_id.out)$( (( calibrates )) && echo ", then mscap run calibrates its best designs")"

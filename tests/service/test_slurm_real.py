@@ -1,9 +1,10 @@
 """The SLURM scripts on a real one-node SLURM (slurm/selftest.sh, about 2 minutes).
 
-The self-test installs Debian's SLURM and munge where they are missing, runs its own
-cluster and stops it. Where it cannot run (not root, not Debian, a SLURM already running)
-it says so and this test is skipped, unless ``MSCAP_SLURM_SELFTEST=require`` (.ci/run), which
-makes that a failure. Its report goes to the terminal, so the CI log shows what passed.
+The self-test runs its own cluster from Debian's SLURM and munge and stops it; it installs
+nothing (``slurm/selftest.sh --install`` does, as .ci/run does before ``make test``). Where
+it cannot run (not root, not Debian, the packages missing, a SLURM already running) it says
+so and this test is skipped, unless ``MSCAP_SLURM_SELFTEST=require`` (.ci/run), which makes
+that a failure. Its report goes to the terminal, so the CI log shows what passed.
 """
 
 from __future__ import annotations
