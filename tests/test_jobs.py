@@ -49,11 +49,12 @@ def test_quick_scene_takes_one_optimisation_step(name):
     from mscap.design.optimizer import optimize
 
     design = build_design(load_scene(JOBS / f"{name}.toml"))
-    scene = design.scene  # its design poses: the listed ones, or a sub-grid of the calibration family
+    scene = design.scene
     result = optimize(design, max_iterations=1, cascade_levels=0)
     events = [r.event for r in result.history]
     assert events[0] == "start" and events.count("step") == 1, events
     assert result.history[1].J < result.history[0].J
     assert result.initial.min_l1_pF > 0.5                 # every pose pair reads apart (pF)
-    assert result.evaluation.capacitance_pF.shape == (len(scene.poses), scene.layout.k)
+    # its design poses: the listed ones, or a sub-grid of the calibration family
+    assert result.evaluation.capacitance_pF.shape == (len(design.poses), scene.layout.k)
     check_layout(result.layout, scene.sheet_outline_mm, scene.min_gap_mm)

@@ -52,7 +52,7 @@ def run(args) -> int:
     say(f"{scene.name}: k = {layout.k}, seed {args.seed}, init {args.init}, {len(design.poses)} design poses")
     result = optimize(design, progress=say, max_iterations=args.max_iterations, cascade_levels=args.cascade)
 
-    summary = write_optimize_output(out, scene, layout, result, args.seed, args.init)
+    summary = write_optimize_output(out, scene, layout, result, args.seed, args.init, result.design.designed)
     files = list(OPTIMIZE_FILES)
     if not args.no_figure:
         from mscap.viz.optimize import optimize_figure

@@ -125,17 +125,19 @@ class OptimizeOutput:
     summary: dict
 
 
-def write_optimize_output(directory, scene: Scene, initial, result, seed: int, init: str) -> dict:
+def write_optimize_output(directory, scene: Scene, initial, result, seed: int, init: str,
+                          designed=None) -> dict:
     """Write :data:`OPTIMIZE_FILES` of one start (initial layout ``initial``, an
     ``OptimizeResult``) of ``scene`` to ``directory``; returns the summary. The tables' rows
-    are the design poses (``result.design.poses``).
+    are the design poses ``designed`` (the design's ``designed``; default the scene's,
+    :func:`mscap.design.readback.design_poses`).
     With a design family the summary holds the read-back bound before and after."""
-    from mscap.design.readback import read_back_estimate
+    from mscap.design.readback import design_poses, read_back_estimate
     from mscap.outputs import output_directory, replace_csv, replace_text
 
     out = output_directory(directory, "optimize -o")
     final = result.layout
-    designed = result.design.designed
+    designed = designed or design_poses(scene)
     bound = read_back_estimate(scene, designed)
     poses = list(designed.names)
     # Each file replaced, not written through: a link planted under its name is not followed.
