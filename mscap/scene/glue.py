@@ -27,6 +27,9 @@ __all__ = ["read_objects", "read_glue_pose"]
 
 logger = logging.getLogger(__name__)
 
+#: The largest surface file read (bytes): meshio reads a whole file into memory.
+MAX_SURFACE_BYTES = 256 * 2**20
+
 
 def _read_surface(t: Table, key: str, base: Path) -> tuple[Path, Any]:
     """Read the triangle surface file named by entry ``key`` of ``t`` with meshio."""
@@ -34,6 +37,9 @@ def _read_surface(t: Table, key: str, base: Path) -> tuple[Path, Any]:
     if not path.is_file():  # not a directory, device or pipe meshio would wait on
         raise t.error(key, f"cannot read surface file {str(path)!r}: "
                       f"{'no such file' if not path.exists() else 'not a regular file'}")
+    if path.stat().st_size > MAX_SURFACE_BYTES:
+        raise t.error(key, f"surface file {str(path)!r} has {path.stat().st_size} bytes; at most "
+                      f"{MAX_SURFACE_BYTES} are read (a hand's surface is a few MB)")
     try:
         mesh = meshio.read(path)
     except Exception as exc:          # meshio raises many types; name the file in all

@@ -11,7 +11,9 @@ from __future__ import annotations
 import difflib
 import logging
 import math
+import os
 import re
+import stat
 import tomllib
 import typing
 from dataclasses import replace
@@ -117,21 +119,52 @@ def load_scene(path: str | Path, source: str | None = None) -> Scene:
 
 def _read_text(path: str) -> str:
     """The scene file's text (UTF-8, newlines as ``read_text`` gives them), or a
-    :class:`SceneError` saying why not."""
+    :class:`SceneError` saying why not. Only a regular file is read, and at most
+    :data:`MAX_SCENE_BYTES` of it: a FIFO would block the open and the read, a device
+    (``/dev/zero``) never end."""
     try:
-        size = Path(path).stat().st_size
-        if size > MAX_SCENE_BYTES:
-            raise SceneError(path, "", f"{size} bytes is not a scene file (they are a few kB; "
-                             f"at most {MAX_SCENE_BYTES} bytes are read)")
-        raw = Path(path).read_bytes()
+        raw = read_regular(path, MAX_SCENE_BYTES, "a scene file (they are a few kB)")
     except OSError as exc:
         raise SceneError(path, "", f"cannot read scene file ({exc.strerror})") from None
+    except ValueError as exc:
+        raise SceneError(path, "", str(exc)) from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise SceneError(path, "", f"not a text file: byte {raw[exc.start]:#04x} at offset {exc.start} "
                          f"is not UTF-8") from None
     return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def read_regular(path, limit: int, what: str) -> bytes:
+    """The bytes of ``path`` if it is a regular file of at most ``limit`` bytes; else a
+    ``ValueError`` saying what it is instead (``what``: what it should have been). Opened
+    without blocking, so a FIFO with no writer is refused, not waited on; read through the
+    open descriptor, so a file swapped for another meanwhile is not read."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            kind = next((name for test, name in _KINDS if test(info.st_mode)), "not a regular file")
+            raise ValueError(f"is {kind}, not {what}")
+        if info.st_size > limit:
+            raise ValueError(f"{info.st_size} bytes is not {what}; at most {limit} bytes are read")
+        chunks, total = [], 0
+        while True:
+            chunk = os.read(fd, min(1 << 20, limit + 1 - total))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+            if total > limit:  # it grew while read
+                raise ValueError(f"more than {limit} bytes is not {what}")
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
 
 
 def _check_points(t: Table, key: str, points: np.ndarray) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import tomllib
 
 import meshio
@@ -14,7 +15,7 @@ from mscap.scene._toml import Table
 from mscap.errors import GeometryError, SceneError
 from mscap.bodies.glue import (GENERATORS, CloughTocher, GlueObject, GluePose, ParameterError,
                                Placement, Surface, check_covers, register_generator)
-from mscap.scene.glue import read_glue_pose, read_objects
+from mscap.scene.glue import MAX_SURFACE_BYTES, read_glue_pose, read_objects
 from tests.conftest import to_toml
 
 R = 15.0            # cylinder radius (mm) of the convergence study
@@ -371,6 +372,9 @@ def files(tmp_path):
     fan = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.5, -1, 0], [0.5, 2, 0]])
     write_surface(tmp_path / "fan.vtu", fan, np.array([[0, 1, 2], [0, 1, 3], [1, 0, 4]]))
     write_surface(tmp_path / "unused.vtu", fan, np.array([[0, 1, 2]]))
+    os.mkfifo(tmp_path / "pipe.vtu")  # meshio would wait on it for ever
+    with open(tmp_path / "huge.vtu", "wb") as f:
+        f.truncate(MAX_SURFACE_BYTES + 1)  # sparse: nothing written
     return tmp_path
 
 
@@ -386,6 +390,8 @@ OBJECT_ERRORS = [
     ({"generator": "cylinder", "width_mm": 1.0, "height_mm": 1.0, "corner_mm": [1.0]},
      r"objects\.o\.corner_mm\[0\]: expected a point \[x, y\]"),
     ({"rest": "missing.obj"}, r"objects\.o\.rest: cannot read surface file '.*missing\.obj'"),
+    ({"rest": "pipe.vtu"}, r"objects\.o\.rest: cannot read surface file '.*pipe\.vtu': not a regular file"),
+    ({"rest": "huge.vtu"}, r"objects\.o\.rest: surface file '.*huge\.vtu' has 268435457 bytes; at most 268435456"),
     ({"rest": "quads.vtu"}, r"objects\.o\.rest: '.*quads\.vtu' has quad cells; only triangles"),
     ({"rest": "rest.vtu", "uv_field": "texture"},
      r"objects\.o\.uv_field: '.*rest\.vtu' has no point data 'texture' \(it has: uv\)"),
