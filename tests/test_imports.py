@@ -111,7 +111,7 @@ def test_no_import_cycle_in_mscap():
 #: The package order, bottom floor first (docs/architecture.md draws it): a package may
 #: import the floors below it and its own, never one above; the first floor is the
 #: top-level modules (``mscap``, ``errors``, ``profile``, ``outfile``, ``farm``, ...).
-FLOORS = (("", "errors", "_lazy", "profile", "testing", "outputs", "outfile", "farm"), ("geometry",), ("bodies",),
+FLOORS = (("", "errors", "_lazy", "profile", "testing", "outputs", "outfile", "infile", "farm"), ("geometry",), ("bodies",),
           ("scene",), ("mesh",), ("fem",), ("readout",), ("fabrication",), ("design",), ("calibration",),
           ("service",), ("viz",), ("cli",))
 

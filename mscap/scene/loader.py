@@ -11,9 +11,7 @@ from __future__ import annotations
 import difflib
 import logging
 import math
-import os
 import re
-import stat
 import tomllib
 import typing
 from dataclasses import replace
@@ -22,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mscap.errors import GeometryError, SceneError
+from mscap.infile import read_regular
 from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import SHAPES, Layout, check_layout, grid_layout
 from mscap.scene import sizing
@@ -134,37 +133,6 @@ def _read_text(path: str) -> str:
         raise SceneError(path, "", f"not a text file: byte {raw[exc.start]:#04x} at offset {exc.start} "
                          f"is not UTF-8") from None
     return text.replace("\r\n", "\n").replace("\r", "\n")
-
-
-_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
-          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
-
-
-def read_regular(path, limit: int, what: str) -> bytes:
-    """The bytes of ``path`` if it is a regular file of at most ``limit`` bytes; else a
-    ``ValueError`` saying what it is instead (``what``: what it should have been). Opened
-    without blocking, so a FIFO with no writer is refused, not waited on; read through the
-    open descriptor, so a file swapped for another meanwhile is not read."""
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            kind = next((name for test, name in _KINDS if test(info.st_mode)), "not a regular file")
-            raise ValueError(f"is {kind}, not {what}")
-        if info.st_size > limit:
-            raise ValueError(f"{info.st_size} bytes is not {what}; at most {limit} bytes are read")
-        chunks, total = [], 0
-        while True:
-            chunk = os.read(fd, min(1 << 20, limit + 1 - total))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            total += len(chunk)
-            if total > limit:  # it grew while read
-                raise ValueError(f"more than {limit} bytes is not {what}")
-        return b"".join(chunks)
-    finally:
-        os.close(fd)
 
 
 def _check_points(t: Table, key: str, points: np.ndarray) -> None:

@@ -30,6 +30,7 @@ from mscap.scene.settings import MultistartSettings
 from mscap.service.checks import check_store, damaged_runs, one_line, run_problem
 from mscap.outfile import ResultsFile, WriteLock, check_output_path, room_text
 from mscap.design.history import DEFAULT_TERMS, history_fields
+from mscap.infile import check_regular
 from mscap.service.schema import (CALIBRATION_ITEMS, FORMAT, HISTORY_COLUMNS, OPTIONAL_HISTORY, ROOT_ATTRS, RUN_ATTRS,
                                   RUN_DATASETS, SCHEMA_VERSION, SELECTION_ITEMS, TEMP_PREFIX, RunRecord, failed_record,
                                   history_kind, record_bytes, record_from_result, run_summary, schema_markdown,
@@ -233,7 +234,10 @@ def read_store(path, check: bool = True) -> h5py.File:
         Not HDF5, not an mscap results file, a newer schema, or a damaged record (named).
     """
     try:
+        check_regular(path, "a results file")  # HDF5 would wait on a FIFO for ever
         f = h5py.File(path, "r", locking=False)
+    except ValueError as exc:
+        raise StoreError(f"{path}: {exc}") from None
     except OSError as exc:
         raise StoreError(f"{path}: cannot open as HDF5 ({one_line(exc)})") from None
     try:

@@ -320,3 +320,18 @@ def test_a_write_that_fails_despite_the_reservation_is_repaired_by_the_resume(tm
             assert read_run(store, f"k2_s{seed:04d}_random").final_capacitance_pF.shape == (3, 2)
     with read_store(path) as f:  # checked again: whole
         assert len(finished_ids(f)) == len(written)
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory"])
+def test_a_results_file_that_is_not_a_file_is_refused_at_once(tmp_path, kind):
+    """HDF5 opened a FIFO and waited for a writer for ever (inspect, plot and merge all hung);
+    ``read_store`` looks at the file first (issue 48)."""
+    path = tmp_path / "r.h5"
+    os.mkfifo(path) if kind == "fifo" else path.mkdir()
+    signal.alarm(10)  # a hang fails the test instead of the suite
+    try:
+        with pytest.raises(StoreError, match=f"r.h5: is a {'FIFO' if kind == 'fifo' else 'directory'}, "
+                                             "not a results file"):
+            read_store(path)
+    finally:
+        signal.alarm(0)

@@ -1,0 +1,56 @@
+"""Files mscap reads that a user names: regular files only, read with a size cap (issue 48).
+
+A FIFO blocks an ``open`` until a writer comes and a device (``/dev/zero``) never ends, so
+a scene file is opened without blocking and read through its descriptor up to a limit
+(:func:`read_regular`), and a results file is refused before HDF5 opens it unless it is a
+regular file (:func:`check_regular`).
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+
+__all__ = ["file_kind", "check_regular", "read_regular"]
+
+_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def read_regular(path, limit: int, what: str) -> bytes:
+    """The bytes of ``path`` if it is a regular file of at most ``limit`` bytes; else a
+    ``ValueError`` saying what it is instead (``what``: what it should have been). Opened
+    without blocking, so a FIFO with no writer is refused, not waited on; read through the
+    open descriptor, so a file swapped for another meanwhile is not read."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise ValueError(f"is {file_kind(info.st_mode)}, not {what}")
+        if info.st_size > limit:
+            raise ValueError(f"{info.st_size} bytes is not {what}; at most {limit} bytes are read")
+        chunks, total = [], 0
+        while True:
+            chunk = os.read(fd, min(1 << 20, limit + 1 - total))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+            if total > limit:  # it grew while read
+                raise ValueError(f"more than {limit} bytes is not {what}")
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
+def file_kind(mode: int) -> str:
+    """What a ``st_mode`` is, in words: "a FIFO", "a directory", ..."""
+    return next((name for test, name in _KINDS if test(mode)), "not a regular file")
+
+
+def check_regular(path, what: str) -> None:
+    """A ``ValueError`` unless ``path`` (links followed) is a regular file; ``OSError``
+    when it cannot be looked at. A ``stat`` never blocks, even on a FIFO."""
+    mode = os.stat(path).st_mode
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"is {file_kind(mode)}, not {what}")
