@@ -13,7 +13,9 @@ Three rules, each a one-line :class:`~mscap.errors.MscapError` when it cannot ho
   leading dot, at most :data:`MAX_STEM` characters.
 
 Also :func:`split_design_spec`: the ``FILE.h5[:RUN]`` by which the commands name a stored
-design, and from which ``mscap calibrate`` names its outputs.
+design, and from which ``mscap calibrate`` names its outputs; and :func:`printable`, which
+every line the commands print passes through (:class:`EscapedStream`): a name read from a
+file that holds ``\x1b[2J`` is shown as those characters, not executed by the terminal.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from typing import Callable, Iterable, Sequence
 
 from mscap.errors import MscapError
 
-__all__ = ["output_directory", "replace_file", "replace_text", "replace_csv", "file_stem", "file_stems",
+__all__ = ["printable", "EscapedStream", "output_directory", "replace_file", "replace_text", "replace_csv", "file_stem", "file_stems",
            "MAX_STEM", "split_design_spec"]
 
 #: Longest file stem made from a name (file systems allow 255 bytes per component, and a
@@ -122,3 +124,28 @@ def split_design_spec(spec: str) -> tuple[str, str | None]:
     if not sep or not path.endswith((".h5", ".hdf5")):
         return str(spec), None
     return path, rid or None
+
+
+#: What a terminal would act on instead of showing: C0 controls but tab and newline, DEL,
+#: C1 controls (``\x9b`` is a one-byte CSI) and the bidirectional overrides and isolates.
+_UNSAFE = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u202a-\u202e\u2066-\u2069]")
+
+
+def printable(text: str) -> str:
+    """``text`` with every character a terminal would act on written as its escape
+    (``\\x1b``, ``\\u202e``): what a file says is shown, never executed."""
+    return _UNSAFE.sub(lambda m: f"\\x{ord(m[0]):02x}" if ord(m[0]) < 0x100 else f"\\u{ord(m[0]):04x}", text)
+
+
+class EscapedStream:
+    """A text stream whose writes pass :func:`printable` (the commands' stdout and stderr,
+    logging's too); everything else is the wrapped stream's."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        return self._stream.write(printable(text))
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)

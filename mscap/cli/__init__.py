@@ -87,6 +87,18 @@ def parse(argv: list[str] | None = None) -> tuple[argparse.Namespace, list[str]]
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit status."""
+    from mscap.outputs import EscapedStream
+
+    # Everything printed passes one filter: a name read from a file cannot drive the terminal.
+    streams = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = EscapedStream(sys.stdout), EscapedStream(sys.stderr)
+    try:
+        return _main(argv)
+    finally:
+        sys.stdout, sys.stderr = streams
+
+
+def _main(argv: list[str] | None) -> int:
     args, petsc_args = parse(argv)
     args.petsc_args = petsc_args
     logging.basicConfig(level=logging.DEBUG if args.verbose > 1 else

@@ -182,3 +182,17 @@ def test_merge_converts_schema_1_explicitly(scene, tmp_path, capsys, caplog):
     assert main(["plot", str(out), "-o", str(tmp_path / "fig.png")]) == 0
     with pytest.raises(StoreError, match="schema_version 1"):  # the old file itself is not written to
         open_store(old, load_scene(scene.path))
+
+
+def test_names_from_a_file_are_shown_not_executed(scene, tmp_path, capsys):
+    """A scene name holding a terminal's clear-screen sequence, a C1 CSI and a right-to-left
+    override is printed as escapes by ``inspect`` (issue 48): every line the commands print
+    passes mscap.outputs.printable."""
+    path = tmp_path / "r.h5"
+    stored(path, scene)
+    with h5py.File(path, "r+") as f:
+        f.attrs["scene_name"] = "evil\x1b[2J\x9b31m\u202efdp.exe\rX"
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "evil\\x1b[2J\\x9b31m\\u202efdp.exe\\x0dX" in out
+    assert not any(c in out for c in "\x1b\x9b\u202e\r")
