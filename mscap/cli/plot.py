@@ -23,9 +23,17 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    from pathlib import Path
+
+    from mscap.outputs import output_directory, replace_file
     from mscap.viz.layouts import plot_results
 
-    items = plot_results(args.results, args.output, dpi=args.dpi)
+    # Written beside its name and renamed over it: a link there is replaced, never followed
+    # (the figure went to the link's target), and a failed plot leaves no partial file.
+    output_directory(Path(args.output).parent, "plot -o")
+    drawn = []
+    replace_file(args.output, lambda path: drawn.extend(plot_results(args.results, path, dpi=args.dpi)))
+    items = drawn
     chosen = next((p.k for p in items if p.chosen), None)
     print(f"wrote {args.output}: {len(items)} k value(s)"
           + (f", chosen k = {chosen}" if chosen is not None else ", no k chosen"))

@@ -83,6 +83,23 @@ def test_no_output_through_a_symbolic_link(scene, tmp_path, synthetic_starts, ca
     assert keep.read_text() == "not results"
 
 
+def test_plot_replaces_a_link_never_follows_it(scene, tmp_path, capsys):
+    """``plot -o link.png`` wrote the figure into the link's target (issue 48); now the figure
+    replaces the link, the target is untouched, and a plot that fails leaves nothing."""
+    source = tmp_path / "a.h5"
+    stored(source, scene)
+    keep = tmp_path / "precious.txt"
+    keep.write_text("not a figure")
+    link = tmp_path / "figs" / "link.png"
+    link.parent.mkdir()
+    link.symlink_to(keep)
+    assert main(["plot", str(source), "-o", str(link)]) == 0
+    assert keep.read_text() == "not a figure"
+    assert not link.is_symlink() and link.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["plot", str(tmp_path / "missing.h5"), "-o", str(tmp_path / "figs" / "none.png")]) == 2
+    assert sorted(p.name for p in link.parent.iterdir()) == ["link.png"]  # no partial file, no temporary
+
+
 def test_merge_into_a_missing_directory_creates_it(scene, tmp_path, capsys):
     source = tmp_path / "a.h5"
     stored(source, scene)
