@@ -14,6 +14,7 @@ import math
 import re
 import tomllib
 import typing
+import unicodedata
 from dataclasses import replace
 from pathlib import Path
 
@@ -471,20 +472,27 @@ def _check_elastic_budget(path: str, elastic: ElasticSettings) -> None:
 
 
 def _read_poses(root: Table, objects: dict) -> tuple:
-    poses, seen = [], set()
+    """The ``[[poses]]``. A name is taken in Unicode's composed form (NFC: ``café`` typed
+    decomposed is the same name) and may not differ from another only by case: on a
+    case-insensitive file system ``Stretch.vtu`` and ``stretch.vtu`` are one file."""
+    poses, seen = [], {}
     for t in root.tables("poses", required=False):
-        name = t.get("name", str)
+        name = unicodedata.normalize("NFC", t.get("name", str))
         if len(name) > MAX_NAME_LENGTH or not re.fullmatch(POSE_NAME_PATTERN, name):
             raise t.error("name", f"{name!r:.80} cannot name a file (mscap simulate --export writes <pose>.vtu): "
                           f"use letters, digits, '_', '-', '+', '.' and inner spaces, starting with a letter "
                           f"or digit, at most {MAX_NAME_LENGTH} characters")
-        if name in seen:
+        if name in seen.values():
             raise t.error("name", f"duplicate pose name {name!r}")
-        seen.add(name)
+        if name.casefold() in seen:
+            raise t.error("name", f"pose name {name!r} differs from {seen[name.casefold()]!r} only by case: their "
+                          f"files (mscap simulate --export) are one on a case-insensitive file system")
+        seen[name.casefold()] = name
         kind = t.get("kind", str)
         if kind not in POSE_KINDS:
             raise t.error("kind", f"unknown pose kind {kind!r}; expected one of {', '.join(POSE_KINDS)}")
-        poses.append(read_pose(t, objects))
+        pose = read_pose(t, objects)
+        poses.append(pose if pose.name == name else replace(pose, name=name))
     return tuple(poses)
 
 

@@ -139,6 +139,13 @@ BAD = [
      "unknown pose kind 'twist'"),
     ("duplicate pose", lambda d: d["poses"].append({"name": "rest", "kind": "free"}), "poses[1].name",
      "duplicate pose name"),
+    # on a case-insensitive file system REST.vtu and rest.vtu are one file (issue 48)
+    ("pose names by case", lambda d: d["poses"].append({"name": "REST", "kind": "free"}), "poses[1].name",
+     "pose name 'REST' differs from 'rest' only by case"),
+    # composed and decomposed é are one name
+    ("pose names by form", lambda d: d["poses"].extend([{"name": "caf\u00e9", "kind": "free"},
+                                                         {"name": "cafe\u0301", "kind": "free"}]),
+     "poses[2].name", "duplicate pose name 'café'"),
     ("k range", lambda d: d.update(multistart={"k_min": 4, "k_max": 3}), "multistart.k_min", "exceeds"),
 ]
 
@@ -152,6 +159,11 @@ def test_bad_scene_is_named(small_scene_dict, write_scene, mutate, key, words):
     message = str(info.value)
     assert message.startswith(f"{path}: {key}: "), message
     assert words in message, message
+
+
+def test_a_decomposed_pose_name_is_taken_composed(small_scene_dict, write_scene):
+    small_scene_dict["poses"].append({"name": "cafe\u0301", "kind": "free"})  # NFD: refused before
+    assert load_scene(write_scene(small_scene_dict)).poses[-1].name == "caf\u00e9"
 
 
 def test_unreadable_and_malformed(tmp_path):
