@@ -7,9 +7,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import h5py
 import numpy as np
 
 from mscap.scene.calibration import NoiseModel
+from mscap.service.checks import float_attr
 from mscap.service.store import finished_ids
 
 __all__ = ["error_estimates", "margin_resolution", "resolution_text", "summary_json", "table", "runs_table",
@@ -67,11 +69,19 @@ def cost(store) -> Cost:
     measured = [row for row in cpu if math.isfinite(row[1])]
     peaks = [(peak, rid) for rid, _, _, peak in cpu if math.isfinite(peak)]
     peak, peak_run = max(peaks) if peaks else (math.nan, "")
-    calibration = store["calibration"].attrs if "calibration" in store else {}
+    calibration = store["calibration"].attrs if isinstance(store.get("calibration"), h5py.Group) else {}
     return Cost(runs=len(rows), measured=len(measured), run_cpu_s=sum(r[1] for r in measured),
                 check_cpu_s=sum(r[2] for r in measured if math.isfinite(r[2])), peak_rss_mb=peak, peak_run=peak_run,
-                calibration_wall_s=float(calibration.get("wall_s", math.nan)),
-                calibration_simulation_s=float(calibration.get("simulation_s", math.nan)))
+                calibration_wall_s=_number(calibration, "wall_s"),
+                calibration_simulation_s=_number(calibration, "simulation_s"))
+
+
+def _number(attrs, name: str) -> float:
+    """Attribute ``name`` as a number; NaN when absent or not a number (it only informs)."""
+    try:
+        return float_attr(attrs, name) if name in attrs else math.nan
+    except ValueError:
+        return math.nan
 
 
 def cost_text(c: Cost) -> str:

@@ -27,7 +27,7 @@ from mscap import __version__
 from mscap.errors import StoreError, StoreFullError
 from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
-from mscap.service.checks import check_store, damaged_runs, one_line, run_problem
+from mscap.service.checks import check_store, damaged_runs, dataset_problem, one_line, run_problem
 from mscap.outfile import ResultsFile, WriteLock, check_output_path, room_text
 from mscap.design.history import DEFAULT_TERMS, history_fields
 from mscap.infile import check_regular
@@ -330,6 +330,9 @@ def read_run(store: h5py.File, rid: str) -> RunRecord:
         known = sorted(finished_ids(store))
         hint = ", ".join(known[:8]) + (", ..." if len(known) > 8 else "")
         raise StoreError(f"{store.filename}: no run {rid!r} (runs: {hint or 'none'})")
+    problem = run_problem(store, rid, deep=True)  # types and declared sizes before a byte is read
+    if problem is not None:
+        raise StoreError(f"{store.filename}: run {rid} is damaged: {problem}")
     try:
         return _read_run(runs[rid])
     except (KeyError, OSError, RuntimeError, ValueError, TypeError) as exc:
@@ -421,11 +424,18 @@ def read_calibration(store: h5py.File) -> tuple[CalibratedDesign, ...]:
         return ()
     try:
         g = store["calibration"]
+        if not isinstance(g, h5py.Group):
+            raise ValueError("it is not a group")
+        kinds = {"label": "str", "k": "iu", "error_mm": "f", "spread_mm": "f", "bound_mm": "f"}
+        problem = next(filter(None, (dataset_problem(g[name] if name in g else None, name, kind, 1)
+                                     for name, kind in kinds.items())), None)
+        if problem:  # from declarations, before a byte is read
+            raise ValueError(problem)
         labels = g["label"].asstr()[()]
         columns = [g[name][()] for name in ("k", "error_mm", "spread_mm", "bound_mm")]
         return tuple(CalibratedDesign(str(label), int(k), float(e), float(s), float(b))
                      for label, k, e, s, b in zip(labels, *columns, strict=True))
-    except (KeyError, OSError, RuntimeError, ValueError) as exc:
+    except (KeyError, OSError, RuntimeError, ValueError, TypeError) as exc:
         log.warning("%s: /calibration is unreadable (%s); choosing by the objective", store.filename, one_line(exc))
         return ()
 
