@@ -87,7 +87,7 @@ class DesignFamily:
     """A regular sub-grid of the calibration's training family, as design poses.
 
     ``values`` ``(n_grid, p)`` in ``itertools.product`` order over ``axes``; ``rows`` the
-    row of each grid point in the design scene's pose table (equal poses share a row);
+    row of each grid point in the design poses' table (equal poses share a row);
     ``reference_row`` the reference pose's row (``None``: raw read-outs); ``derivative``
     ``(p, n_grid, n_grid)`` the difference quotients along the grid (``∂f/∂θ_p ≈ D_p f``);
     ``sensitivity`` ``(n_grid, p, p)`` GᵀG / n_points of the reconstruction targets (mm²
@@ -284,7 +284,7 @@ class ReconstructionBound(Term):
         r_g = √e_g,    bound = τ log( mean_g exp(r_g/τ) )
 
     which lies between the mean and the max of r_g. ``value_and_gradient`` returns the
-    bound (mm) and ``∂bound/∂C`` (mm/pF) over the design scene's rows."""
+    bound (mm) and ``∂bound/∂C`` (mm/pF) over the design poses' rows."""
 
     family: DesignFamily
     tau_mm: float = 0.25
