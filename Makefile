@@ -30,7 +30,7 @@ run: install
 	$(VENV)/bin/mscap plot $(OUT)/$(basename $(notdir $(SCENE))).h5 -o $(OUT)/$(basename $(notdir $(SCENE))).png
 
 test: install
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=15
 
 install: system-packages $(VENV)/.installed
 
