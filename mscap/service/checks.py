@@ -33,9 +33,10 @@ _STATUSES = ("ok", "pruned", "failed")
 
 
 #: What an honest file holds at most; a file that declares more is refused before it is
-#: read. Texts: characters. A dataset: its declared bytes (shape × item size; HDF5 can
-#: declare 6 GB in a 244 kB gzip file). The largest honest dataset is a long run's
-#: outlines: 100 plates of 20,000 vertices (0.075 mm apart on a 1.5 m perimeter), 32 MB.
+#: read. Texts: characters (the writer cuts a longer error or reason to fit). A dataset: its
+#: declared bytes (shape × item size; HDF5 can declare 6 GB in a 244 kB gzip file). The
+#: largest honest dataset is a run's outlines: 100 plates of 1,300 vertices (a 100 mm
+#: perimeter at 0.075 mm) are 2 MB, 30 times under the budget.
 MAX_TEXT = {"format": 64, "mscap_version": 64, "scene_name": 1000, "scene_path": 4096,
             "scene_toml": MAX_SCENE_BYTES, "scene_sha256": 64, "start_time": 64, "last_open_time": 64,
             "init": 64, "status": 16, "error": 20_000, "reason": 20_000}
@@ -43,7 +44,6 @@ MAX_DATASET_BYTES = 64 * 2**20
 #: A run's group name: what :func:`mscap.service.selection.run_id` makes (``k3_s3007_lloyd``).
 RUN_NAME = re.compile(r"k[0-9]{1,6}_s[0-9]{1,19}_[a-z]{1,32}")
 _RUN_INTS = {"k": (1, MAX_CAPACITORS), "seed": (0, 2**63 - 1), "iterations": (0, 2**31), "rank": (0, 2**31)}
-_RUN_FLOATS = ("wall_s", "metric_pF")
 #: Run datasets: (dtype kind, dimensions).
 _RUN_SHAPES = {"initial_outline_points_mm": ("f", 2), "final_outline_points_mm": ("f", 2),
                "initial_outline_offsets": ("iu", 1), "final_outline_offsets": ("iu", 1),
@@ -112,7 +112,7 @@ def dataset_problem(obj, name: str, kind: str, ndim: int | None) -> str | None:
 def run_problem(store: h5py.File, rid: str, deep: bool = True) -> str | None:
     """What is wrong with the stored run ``rid``, or ``None``.
 
-    Shallow (every reader, about 0.5 ms a run): its name, a missing attribute or dataset,
+    Shallow (every reader, about 2 ms a run): its name, a missing attribute or dataset,
     an attribute of the wrong type or range (every attribute of ``RUN_ATTRS`` present is
     checked against its declared type). ``deep`` (:func:`mscap.service.store.read_run`
     before it reads a run, the resume, ``mscap merge``; about 10 ms a run): also a dataset

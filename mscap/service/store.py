@@ -27,7 +27,7 @@ from mscap import __version__
 from mscap.errors import StoreError, StoreFullError
 from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
-from mscap.service.checks import check_store, damaged_runs, dataset_problem, one_line, run_problem
+from mscap.service.checks import MAX_TEXT, check_store, damaged_runs, dataset_problem, one_line, run_problem
 from mscap.outfile import ResultsFile, WriteLock, check_output_path, room_text
 from mscap.design.history import DEFAULT_TERMS, history_fields
 from mscap.infile import check_regular
@@ -271,6 +271,12 @@ def _unragged(points: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, ...]
 _STR = h5py.string_dtype()
 
 
+def _clipped(text: str, limit: int) -> str:
+    """``text`` cut to ``limit`` characters (what a reader accepts, mscap.service.checks.MAX_TEXT)."""
+    text, tail = str(text), " ... [cut]"
+    return text if len(text) <= limit else text[:limit - len(tail)] + tail
+
+
 def write_run(store: ResultsFile, record: RunRecord) -> str:
     """Write one run (replacing an earlier one of the same id), flush and ``fsync``;
     returns its id.
@@ -284,7 +290,8 @@ def write_run(store: ResultsFile, record: RunRecord) -> str:
     rid = record.id
     temp = TEMP_PREFIX + rid
     values = {"k": int(record.k), "seed": int(record.seed), "init": record.init, "status": record.status,
-              "error": record.error, "reason": record.reason, "wall_s": float(record.wall_s),
+              "error": _clipped(record.error, MAX_TEXT["error"]), "reason": _clipped(record.reason, MAX_TEXT["reason"]),
+              "wall_s": float(record.wall_s),
               "iterations": int(record.iterations), "rank": int(record.rank), "metric_pF": record.metric,
               "error_estimate": float(record.error_estimate), "finer_metric_pF": float(record.finer_metric_pF),
               "error_estimate_wall_s": float(record.error_estimate_wall_s), "cpu_s": float(record.cpu_s),

@@ -154,3 +154,18 @@ def test_a_hostile_results_file_is_one_line_never_a_traceback(honest, tmp_path, 
         refused.add(command)
     # merge refuses what inspect refuses; a damaged /calibration only informs, and is left out
     assert refused == (set() if words is None else set(COMMANDS)), (name, "refused by", sorted(refused))
+
+
+def test_a_long_error_is_cut_when_written_not_refused_when_read(tmp_path, free_poses_scene, capsys):
+    """The reader's text limits are the writer's too: a failed start's 50,000-character error
+    is stored cut to fit, so an honest file never reads as damaged."""
+    from mscap.service.schema import failed_record
+    from mscap.service.store import read_run, read_store
+
+    path = tmp_path / "r.h5"
+    with open_store(path, free_poses_scene(3)) as store:
+        rid = write_run(store, failed_record(2, 7, "random", "ElasticError: " + "x" * 50_000, 1.0))
+    with read_store(path) as f:
+        error = read_run(f, rid).error
+    assert error.startswith("ElasticError: xxx") and error.endswith(" ... [cut]") and len(error) == 20_000
+    assert main(["inspect", str(path), "--runs"]) == 0
