@@ -246,7 +246,7 @@ def _read_mesh(t: Table, layers: tuple[Layer, ...], sheet: np.ndarray) -> MeshSe
     diagonal = float(np.hypot(*np.ptp(sheet, axis=0)))
     grading = t.get("grading_distance_mm", float, ... if by_hand else far / sizing.STEEP, positive=True,
                     maximum=max(diagonal, far / sizing.STEEP),
-                    why=f"the sheet's diagonal: beyond it the whole sheet is meshed at the outline edge")
+                    why="the sheet's diagonal: beyond it the whole sheet is meshed at the outline edge")
     per_layer = t.get("elements_per_layer", int, 1, minimum=1, maximum=MAX_SLABS,
                       why="tet slabs per layer; studied settings use 1-2")
     order = t.get("order", int, 1)
