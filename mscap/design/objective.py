@@ -339,10 +339,6 @@ class ObjectiveParts:
     J: float
     terms: Mapping[str, float]
 
-    @property
-    def d(self) -> float:
-        return self.terms["d"]
-
 
 @dataclass(frozen=True)
 class LayoutObjective:
@@ -506,7 +502,8 @@ def layout_objective(scene: Scene, dhat_mm: float | None = None, *,
     named ``d``, ``barrier``, ``area`` (with an area limit) and ``smoothing``; d over the
     design poses ``designed`` (default: the scene's)."""
     settings = scene.optimizer
-    separation = SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm, feature_mm=settings.min_feature_mm)
+    separation = SeparationBarrier(scene.sheet_outline_mm, scene.min_gap_mm, dhat_mm,
+                                   feature_mm=settings.min_feature_mm)
     terms = [NamedTerm("d", capacitance_term(scene, designed), -1.0, "capacitance"),
              NamedTerm("barrier", separation, settings.barrier_weight, "outlines")]
     if settings.max_plate_area_mm2 > 0:

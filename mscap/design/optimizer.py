@@ -187,7 +187,8 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                    time.perf_counter() - started, size_ratio(design, e.q), e.error_J, e.margin_error_pF)
         history.append(r)
         terms = " ".join(f"{name} {value:.4g}" for name, value in e.terms.items())
-        say(f"it {iteration:3d} L{level} {event:<9} J {e.J:+.6e} {terms} |g| {r.grad_norm:.3e} step {step:.3g} mm minL1 {e.min_l1_pF:.4g} pF "
+        say(f"it {iteration:3d} L{level} {event:<9} J {e.J:+.6e} {terms} |g| {r.grad_norm:.3e} "
+            f"step {step:.3g} mm minL1 {e.min_l1_pF:.4g} pF "
             f"evals {evaluations} newton {r.newton_iterations} angle {angle:.1f} gap {r.min_gap_mm:.3g} mm "
             f"mem {len(memory.pairs)} "
             f"t {r.time_s:.1f} s")

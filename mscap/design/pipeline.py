@@ -99,11 +99,6 @@ class Evaluation:
     def min_l1_pF(self) -> float:
         return min_pairwise_l1(self.capacitance_pF)
 
-    @property
-    def d(self) -> float:
-        """The capacitance term d (the term J maximises; the multi-start's score reads it)."""
-        return self.terms["d"]
-
     def release(self, keep_elastic: bool = False) -> None:
         """Destroy the kept factorisations (PETSc objects) and drop the electrostatic
         fields and moved vertices now: :meth:`Design.gradient` needs them, nothing else

@@ -48,7 +48,7 @@ from mscap.scene.calibration import NoiseModel, family_poses
 from mscap.scene.loader import check_optimizer, family_grid_counts
 from mscap.scene.settings import Scene
 
-__all__ = ["DesignFamily", "DesignPoses", "design_family", "design_poses", "ProtocolDissimilarity",
+__all__ = ["DesignFamily", "DesignPoses", "design_poses", "ProtocolDissimilarity",
            "ReconstructionBound", "MapNoise", "ReadbackError", "read_back_estimate", "reading_variance",
            "difference_variance", "grid_pose_name", "grid_derivatives"]
 
@@ -158,14 +158,32 @@ def _targets(poses, target: str, values: np.ndarray) -> tuple[np.ndarray, int]:
     return np.array([p.vertex_positions(1.0).ravel() for p in poses]), 3
 
 
-def design_family(scene: Scene) -> tuple[tuple, DesignFamily | None]:
-    """The design poses of ``scene`` (``[optimizer] design_poses``) and, when they include
-    the calibration family, its :class:`DesignFamily`. Grid points take ``family_grid``
-    evenly spread members of each training axis (the first and last included)."""
+@dataclass(frozen=True)
+class DesignPoses:
+    """What a design of a scene is simulated and judged on (``[optimizer] design_poses``):
+    ``poses``, the scene's listed poses or the calibration family's grid (with the
+    reference pose; both, for ``"both"``), and ``family``, the :class:`DesignFamily` of the
+    grid (``None`` for the listed poses). Made from the scene by :func:`design_poses` and
+    carried beside it, by the :class:`~mscap.design.pipeline.Design`: the scene itself
+    stays the sensor and its listed poses."""
+
+    poses: tuple
+    family: DesignFamily | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.poses)
+
+
+def design_poses(scene: Scene) -> DesignPoses:
+    """The :class:`DesignPoses` of ``scene`` (``[optimizer] design_poses``): its listed
+    poses, or the calibration family's grid with its :class:`DesignFamily`. Grid points
+    take ``family_grid`` evenly spread members of each training axis (the first and last
+    included). Checks ``[optimizer]`` (:func:`mscap.scene.loader.check_optimizer`)."""
     check_optimizer(scene.path, scene.optimizer, scene.calibration)
     mode = scene.optimizer.design_poses
     if mode == "listed":
-        return scene.poses, None
+        return DesignPoses(scene.poses)
     cal = scene.calibration
     training = np.asarray(cal.training)
     full_axes = [np.unique(training[:, i]) for i in range(training.shape[1])]
@@ -197,30 +215,7 @@ def design_family(scene: Scene) -> tuple[tuple, DesignFamily | None]:
     family = DesignFamily(parameters=cal.parameters, axes=axes, values=values, rows=rows,
                           reference_row=reference_row, derivative=derivative, sensitivity=sensitivity,
                           prior=12.0 / span**2, noise=cal.noise, target_gram=x @ x.T / (x.shape[1] // dim))
-    return tuple(poses), family
-
-
-@dataclass(frozen=True)
-class DesignPoses:
-    """What a design of a scene is simulated and judged on (``[optimizer] design_poses``):
-    ``poses``, the scene's listed poses or the calibration family's grid (with the
-    reference pose; both, for ``"both"``), and ``family``, the :class:`DesignFamily` of the
-    grid (``None`` for the listed poses). Made from the scene by :func:`design_poses` and
-    carried beside it, by the :class:`~mscap.design.pipeline.Design`: the scene itself
-    stays the sensor and its listed poses."""
-
-    poses: tuple
-    family: DesignFamily | None = None
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(p.name for p in self.poses)
-
-
-def design_poses(scene: Scene) -> DesignPoses:
-    """The :class:`DesignPoses` of ``scene``; checks ``[optimizer]``
-    (:func:`mscap.scene.loader.check_optimizer`)."""
-    return DesignPoses(*design_family(scene))
+    return DesignPoses(tuple(poses), family)
 
 
 # ---------------------------------------------------------------- objective terms
@@ -431,7 +426,7 @@ class MapNoise(Term):
         equal read-outs)."""
         fam = self.family
         if fam.target_gram is None:
-            raise ValueError("the design family has no targets' Gram matrix (made by design_family)")
+            raise ValueError("the design family has no targets' Gram matrix (made by design_poses)")
         rows, first, inverse = np.unique(fam.rows, return_index=True, return_inverse=True)
         average = (inverse[None, :] == np.arange(len(rows))[:, None]) / np.bincount(inverse)[:, None]
         return first, inverse, average @ fam.target_gram @ average.T

@@ -28,7 +28,7 @@ def family(values, rows, reference_row, x, dim=1):
     axes = tuple(np.unique(values[:, i]) for i in range(values.shape[1]))
     p, points = values.shape[1], x.shape[1] // dim
     derivative = grid_derivatives(axes)
-    slope = np.einsum("pgh,ho->gpo", derivative, x)  # as design_family makes the bound's sensitivity
+    slope = np.einsum("pgh,ho->gpo", derivative, x)  # as design_poses makes the bound's sensitivity
     return DesignFamily(tuple("abc"[:p]), axes, values, np.asarray(rows), reference_row, derivative,
                         np.einsum("gpo,gqo->gpq", slope, slope) / points, np.full(p, 0.5), NOISE,
                         target_gram=x @ x.T / points)
