@@ -6,6 +6,8 @@ import copy
 import json
 import math
 import re
+import signal
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -138,3 +140,18 @@ def synthetic_record(k: int, seed: int, init: str = "random", scale: float = 1.0
                      initial_outlines=outlines(), final_outlines=outlines(),
                      initial_capacitance_pF=50 + rng.random((3, k)),
                      final_capacitance_pF=50 + scale * rng.random((3, k)) * 10, history=history)
+
+
+@contextmanager
+def within(seconds: int):
+    """Fail instead of hanging: a blocked open or an endless read is the bug tested for."""
+    def expired(signum, frame):
+        raise AssertionError(f"still reading after {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, expired)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)

@@ -44,11 +44,18 @@ MAX_DATASET_BYTES = 64 * 2**20
 #: A run's group name: what :func:`mscap.service.selection.run_id` makes (``k3_s3007_lloyd``).
 RUN_NAME = re.compile(r"k[0-9]{1,6}_s[0-9]{1,19}_[a-z]{1,32}")
 _RUN_INTS = {"k": (1, MAX_CAPACITORS), "seed": (0, 2**63 - 1), "iterations": (0, 2**31), "rank": (0, 2**31)}
-#: Run datasets: (dtype kind, dimensions).
-_RUN_SHAPES = {"initial_outline_points_mm": ("f", 2), "final_outline_points_mm": ("f", 2),
-               "initial_outline_offsets": ("iu", 1), "final_outline_offsets": ("iu", 1),
-               "poses": ("str", 1), "initial_capacitance_pF": ("f", 2), "final_capacitance_pF": ("f", 2),
-               "finer_capacitance_pF": ("f", 2)}
+
+
+def _declared(type_text: str) -> tuple[str, int]:
+    """``(dtype kinds, dimensions)`` of a ``RUN_DATASETS`` type, e.g. ``"float64 (n, 2)"`` →
+    ``("f", 2)``, ``"int64 (k + 1,)"`` → ``("iu", 1)``, ``"str (n_poses,)"`` → ``("str", 1)``."""
+    dtype, _, shape = type_text.partition(" ")
+    kind = "str" if dtype == "str" else "iu" if np.dtype(dtype).kind in "iu" else np.dtype(dtype).kind
+    return kind, shape.strip("()").rstrip(",").count(",") + 1
+
+
+#: Run datasets: (dtype kinds, dimensions), from the schema's one declaration.
+_RUN_SHAPES = {name: _declared(kind) for name, (kind, _) in RUN_DATASETS.items() if "/" not in name}
 
 
 def text_attr(attrs, name: str) -> str:

@@ -5,30 +5,14 @@ give an OS error deep inside the read. Each is one SceneError naming the file, a
 from __future__ import annotations
 
 import os
-import signal
 import socket
-from contextlib import contextmanager
 
 import pytest
 
 from mscap.errors import SceneError
 from mscap.scene import load_scene
 from mscap.scene.settings import MAX_SCENE_BYTES
-
-
-@contextmanager
-def within(seconds: int):
-    """Fail instead of hanging: a blocked open or an endless read is the bug tested for."""
-    def expired(signum, frame):
-        raise AssertionError(f"still reading after {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, expired)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
+from tests.conftest import within
 
 
 def special(tmp_path, kind: str) -> str:

@@ -14,7 +14,7 @@ import pytest
 from mscap.cli import main
 from mscap.service.store import open_store, store_selection, write_run, write_selection
 from tests.conftest import synthetic_record
-from tests.scene.test_files import within
+from tests.conftest import within
 
 RUN = "runs/k3_s3000_random"
 

@@ -328,7 +328,7 @@ def test_a_results_file_that_is_not_a_file_is_refused_at_once(tmp_path, kind):
     ``read_store`` looks at the file first (issue 48)."""
     path = tmp_path / "r.h5"
     os.mkfifo(path) if kind == "fifo" else path.mkdir()
-    from tests.scene.test_files import within
+    from tests.conftest import within
 
     with within(10), pytest.raises(StoreError, match=f"r.h5: is a {'FIFO' if kind == 'fifo' else 'directory'}, "
                                                      "not a results file"):
