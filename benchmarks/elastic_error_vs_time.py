@@ -43,7 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from mscap.mesh.layered import mesh_scene  # noqa: E402
+from mscap.mesh.layered import mesh_sheet  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.fem.simulate import simulate  # noqa: E402
@@ -157,7 +157,7 @@ def main(argv=None) -> int:
         scene_name, pose = case.split(":")
         configs = QUICK if args.quick else list(dict.fromkeys(REFERENCES.get(pose, []) + SWEEP))
         scene = load_scene(ROOT / "jobs" / f"{scene_name}.toml")
-        mesh = mesh_scene(scene)
+        mesh = mesh_sheet(scene.sheet)
         for order, h, slabs in configs:
             if (scene.name, pose, order, None if h is None else round(h, 6), slabs) in done:
                 continue

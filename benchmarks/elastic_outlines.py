@@ -45,14 +45,16 @@ def main() -> None:
             record = read_run(store, args.run)
     except (MscapError, KeyError) as exc:
         sys.exit(f"benchmarks/elastic_outlines.py: {exc}")
-    scene = replace(finer(scene) if args.finer else scene, layout=Layout(record.final_outlines))
+    sheet, elastic = replace(scene.sheet, layout=Layout(record.final_outlines)), scene.elastic
+    if args.finer:
+        sheet, elastic = finer(sheet, elastic)
     print(f"{args.run}: outline vertices {[len(o) for o in record.final_outlines]}")
     coarsened = layered.elastic_layout
     capacitance = {}
     for name, embed in (("coarsened", coarsened), ("as they are", lambda layout, *rest: layout)):
         layered.elastic_layout = embed
         start = time.perf_counter()
-        sim = simulate(scene, keep_fields=False)
+        sim = simulate(scene, keep_fields=False, sheet=sheet, elastic=elastic)
         capacitance[name] = sim.capacitance_pF
         print(f"{name:12s}: {len(sim.elastic.rest):6d} elastic nodes, simulation {time.perf_counter() - start:6.1f} s "
               f"(elastic {sim.times['elastic']:.1f} s)", flush=True)

@@ -46,7 +46,7 @@ sys.path.insert(0, str(ROOT))
 from mscap.fem.electrostatic import build_problem, solve  # noqa: E402
 from mscap.geometry.polygons import square  # noqa: E402
 from mscap.geometry.layout import Layout  # noqa: E402
-from mscap.mesh.layered import mesh_scene  # noqa: E402
+from mscap.mesh.layered import mesh_sheet  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 
@@ -62,7 +62,7 @@ def run(scene, order, h_out, h_far, grading, per_layer, sheet=None, layout=None,
                                   sheet_outline_mm=scene.sheet_outline_mm if sheet is None else sheet,
                                   layout=scene.layout if layout is None else layout)
     t0 = time.perf_counter()
-    mesh = mesh_scene(variant)
+    mesh = mesh_sheet(variant.sheet)
     t1 = time.perf_counter()
     problem = build_problem(mesh, scene.layers, order)
     t2 = time.perf_counter()

@@ -79,18 +79,18 @@ def lead_stiffness(scene, outlines, routing, label: str) -> str:
     """One markdown row: the readings as wired with and without the leads' stiffness."""
     from mscap.fabrication.wired import plates_only, readings, wiring_of
     from mscap.geometry.layout import Layout
-    from mscap.scene.sizing import with_layout
+    from mscap.scene.sizing import sheet_for
 
-    scene = with_layout(scene, Layout(outlines))
+    sheet = sheet_for(scene, Layout(outlines))
     wiring = wiring_of(routing)
     started = time.perf_counter()
-    stiff, _ = readings(scene, wiring)
+    stiff, _ = readings(scene, sheet, wiring)
     stiff_s = time.perf_counter() - started
     started = time.perf_counter()
     alone = plates_only(outlines, meshed_like=wiring)
-    soft, _ = readings(scene, wiring, stiffness=alone)  # the same meshes, the leads of the silicone around them
+    soft, _ = readings(scene, sheet, wiring, stiffness=alone)  # the same meshes, the leads of the silicone around them
     soft_s = time.perf_counter() - started
-    plates, _ = readings(scene, alone)
+    plates, _ = readings(scene, sheet, alone)
 
     def signal_change(a, b):  # largest change of a pose-to-pose signal, % of that capacitor's range
         da, db = a - a[0], b - b[0]

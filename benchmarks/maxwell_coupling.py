@@ -45,7 +45,7 @@ from mscap.fem.electrostatic import build_problem, solve  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.geometry.layout import Layout  # noqa: E402
 from mscap.geometry.polygons import square  # noqa: E402
-from mscap.mesh.layered import mesh_scene  # noqa: E402
+from mscap.mesh.layered import mesh_sheet  # noqa: E402
 from mscap.scene.sizing import COUPLING_RUNG, LADDER, Rung, rung_settings, settings_for_tolerance  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.scene.settings import MeshSettings  # noqa: E402
@@ -65,7 +65,7 @@ def maxwell(scene, gap, settings):
                                   sheet_outline_mm=np.array([[-width / 2, -width / 2], [width / 2, -width / 2],
                                                              [width / 2, width / 2], [-width / 2, width / 2]]),
                                   )
-    problem = build_problem(mesh_scene(variant), scene.layers, settings.order, settings.element)
+    problem = build_problem(mesh_sheet(variant.sheet), scene.layers, settings.order, settings.element)
     return solve(problem, maxwell=True).maxwell_pF, problem.n_dofs
 
 

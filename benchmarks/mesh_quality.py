@@ -46,7 +46,7 @@ from benchmarks._common import table_head, write_csv  # noqa: E402
 from benchmarks.scene_accuracy import richardson  # noqa: E402
 from mscap.fem.electrostatic import build_problem, solve  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
-from mscap.mesh.layered import mesh_scene  # noqa: E402
+from mscap.mesh.layered import mesh_sheet  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.scene.settings import MeshSettings  # noqa: E402
 
@@ -105,7 +105,7 @@ def capacitances(scene, settings=None):
     if settings is not None:
         scene = dataclasses.replace(scene, mesh=settings)
     start = time.perf_counter()
-    mesh = mesh_scene(scene)
+    mesh = mesh_sheet(scene.sheet)
     problem = build_problem(mesh, scene.layers, scene.mesh.order, getattr(scene.mesh, "element", "tet"))
     c = np.asarray(solve(problem).capacitance_pF, dtype=float)
     seconds = time.perf_counter() - start

@@ -524,7 +524,7 @@ def main(argv=None):
         t0 = time.perf_counter()
         mesh2d = triangulate(variant.sheet_outline_mm, variant.layout, settings)
         t1 = time.perf_counter()
-        mesh = extrude(mesh2d, thicknesses, per_layer)  # = mesh_scene(variant)
+        mesh = extrude(mesh2d, thicknesses, per_layer)  # = mesh_sheet(variant.sheet)
         t2 = time.perf_counter()
         problem = build_problem(mesh, scene.layers, order)
         t3 = time.perf_counter()

@@ -55,7 +55,7 @@ from mscap.fem.electrostatic import build_problem, solve  # noqa: E402
 from mscap.fem.petsc import petsc  # noqa: E402
 from mscap.geometry.layout import Layout  # noqa: E402
 from mscap.geometry.polygons import disk, square  # noqa: E402
-from mscap.mesh.layered import mesh_scene  # noqa: E402
+from mscap.mesh.layered import mesh_sheet  # noqa: E402
 from mscap.scene.sizing import FRINGE_STACKS, LADDER, STEEP, TET_LADDER, Rung, rung_settings  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.scene.settings import MeshSettings  # noqa: E402
@@ -78,7 +78,7 @@ def capacitance(scene, plate, settings):
     extent = np.ptp(plate, axis=0).max()
     variant = dataclasses.replace(scene, mesh=settings, layout=Layout((plate,)),
                                   sheet_outline_mm=square(plate.mean(axis=0), extent + 2 * MARGIN_MM))
-    mesh = mesh_scene(variant)
+    mesh = mesh_sheet(variant.sheet)
     start = time.perf_counter()
     problem = build_problem(mesh, scene.layers, settings.order, settings.element)
     c = float(solve(problem).capacitance_pF[0])

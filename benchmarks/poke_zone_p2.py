@@ -233,26 +233,25 @@ def strips_of(spec: dict, poses, sheet_outline_mm) -> tuple[tuple[float, float, 
 
 
 @timed("meshing")
-def zoned_mesh_elastic(scene, mesh):
+def zoned_mesh_elastic(sheet, settings, mesh, poses):
     """:func:`mscap.mesh.layered.mesh_elastic` with, for P2 and a set :data:`_ZONE`, the
     zones of :func:`zones_of` instead of none (the rest is mesh_elastic's own code)."""
     from mscap.mesh.budget import check_fits, estimate_elastic
     from mscap.mesh.triangulate import triangulate
 
-    settings = scene.elastic
     if _ZONE is not None and _ZONE.get("mscap"):  # mscap's own refined mesh (refine_pokes on)
-        return _ORIGINAL(replace(scene, elastic=replace(settings, refine_pokes=True)), mesh)
+        return _ORIGINAL(sheet, replace(settings, refine_pokes=True), mesh, poses)
     if _ZONE is None or settings.order != 2 or settings.mesh == "shared":  # uniform: mscap's refinement off
-        return _ORIGINAL(replace(scene, elastic=replace(settings, refine_pokes=False)), mesh)
-    check_fits(estimate_elastic(scene), scene.path)
+        return _ORIGINAL(sheet, replace(settings, refine_pokes=False), mesh, poses)
+    check_fits(estimate_elastic(sheet, settings, poses), sheet.path)
     h = settings.edge_length_mm
     outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
-    zones = zones_of(_ZONE, _ZONE_POSES or scene.poses, scene.sheet_outline_mm)
-    strips = strips_of(_ZONE, _ZONE_POSES or scene.poses, scene.sheet_outline_mm)
-    mesh2d = triangulate(scene.sheet_outline_mm, layered.elastic_layout(scene.layout, scene.sheet_outline_mm, outline),
-                         replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0,
+    zones = zones_of(_ZONE, _ZONE_POSES or poses, sheet.outline_mm)
+    strips = strips_of(_ZONE, _ZONE_POSES or poses, sheet.outline_mm)
+    mesh2d = triangulate(sheet.outline_mm, layered.elastic_layout(sheet.layout, sheet.outline_mm, outline),
+                         replace(sheet.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0,
                                  zones=zones, strips=strips))
-    return layered.extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
+    return layered.extrude(mesh2d, sheet.thicknesses_mm, sheet.mesh.elements_per_layer,
                            slabs=settings.elements_through_thickness or None)
 
 

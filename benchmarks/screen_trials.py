@@ -51,7 +51,8 @@ def child(scene_path: str, setting: str, on: bool, iterations: int | None, casca
     scene = replace(scene, optimizer=replace(scene.optimizer, **{setting: on}))
     layout = None if k is None else initial_layout(scene, k, seed, "lloyd")
     cpu = time.process_time()
-    result = optimize(build_design(scene, layout=layout), max_iterations=iterations, cascade_levels=cascade)
+    sheet = None if layout is None else replace(scene.sheet, layout=layout)
+    result = optimize(build_design(scene, sheet=sheet), max_iterations=iterations, cascade_levels=cascade)
     return {"J": [r.J for r in result.history], "events": [r.event for r in result.history],
             "evaluations": int(sum(r.evaluations for r in result.history)), "steps": result.iterations,
             "cpu_s": time.process_time() - cpu, "min_l1_pF": result.evaluation.min_l1_pF,

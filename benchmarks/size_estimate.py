@@ -61,22 +61,22 @@ def relative(estimate: float, actual: float) -> float:
 
 def measure(name: str, elastic: bool, p2: bool, finer: bool) -> list[dict]:
     from mscap.mesh.budget import estimate_elastic, estimate_electrostatic
-    from mscap.mesh.layered import mesh_elastic, mesh_scene
+    from mscap.mesh.layered import mesh_elastic, mesh_sheet
     from mscap.scene import load_scene
 
     path = f"jobs/{name}.toml"
     scene = load_scene(ROOT / path)
     start = time.perf_counter()
-    electro, el = estimate_electrostatic(scene), estimate_elastic(scene)
+    electro, el = estimate_electrostatic(scene.sheet), estimate_elastic(scene.sheet, scene.elastic, scene.poses)
     micros = (time.perf_counter() - start) * 1e6 / 2
-    mesh = mesh_scene(scene)
+    mesh = mesh_sheet(scene.sheet)
     rows = [dict(scene=name, problem="electrostatic", order=scene.mesh.order, est_vertices=electro.vertices,
                  vertices=len(mesh.points), est_tets=electro.tets, tets=len(mesh.tets),
                  est_unknowns=electro.unknowns, est_peak_MB=electro.memory_bytes / 1e6, estimate_us=micros)]
     rows[0]["mesh_peak_MB"] = peak_mb(["mesh", path])
     rows[0].update(simulate_peak_MB=peak_mb(["capacitance", path]), simulate="capacitance")
     if el is not None:
-        emesh = mesh_elastic(scene, mesh)
+        emesh = mesh_elastic(scene.sheet, scene.elastic, mesh, scene.poses)
         row = dict(scene=name, problem="elastic", order=scene.elastic.order, est_vertices=el.vertices,
                    vertices=len(emesh.points), est_tets=el.tets, tets=len(emesh.tets), est_unknowns=el.unknowns,
                    est_peak_MB=max(el.memory_bytes, electro.memory_bytes) / 1e6, estimate_us=micros)
@@ -90,7 +90,7 @@ def measure(name: str, elastic: bool, p2: bool, finer: bool) -> list[dict]:
 
         from mscap.mesh.budget import estimate_electrostatic as estimate
 
-        e2 = estimate(replace(scene, mesh=replace(scene.mesh, order=2)))
+        e2 = estimate(replace(scene.sheet, mesh=replace(scene.mesh, order=2)))
         rows.append(dict(scene=name, problem="electrostatic", order=2, est_vertices=e2.vertices,
                          vertices=len(mesh.points), est_tets=e2.tets, tets=len(mesh.tets), est_unknowns=e2.unknowns,
                          est_peak_MB=e2.memory_bytes / 1e6, estimate_us=micros,
@@ -99,12 +99,12 @@ def measure(name: str, elastic: bool, p2: bool, finer: bool) -> list[dict]:
     if finer and name in PAPER:
         from mscap.service.accuracy import finer as one_level_finer
 
-        fine = one_level_finer(scene)
-        fe, fel = estimate_electrostatic(fine), estimate_elastic(fine)
-        fmesh = mesh_scene(fine)
-        femesh = mesh_elastic(fine, fmesh)
+        fine, fine_elastic = one_level_finer(scene.sheet, scene.elastic)
+        fe, fel = estimate_electrostatic(fine), estimate_elastic(fine, fine_elastic, scene.poses)
+        fmesh = mesh_sheet(fine)
+        femesh = mesh_elastic(fine, fine_elastic, fmesh, scene.poses)
         for problem, est, m, order in (("electrostatic", fe, fmesh, fine.mesh.order),
-                                       ("elastic", fel, femesh, fine.elastic.order)):
+                                       ("elastic", fel, femesh, fine_elastic.order)):
             rows.append(dict(scene=f"{name} (finer check)", problem=problem, order=order, est_vertices=est.vertices,
                              vertices=len(m.points), est_tets=est.tets, tets=len(m.tets), est_unknowns=est.unknowns,
                              est_peak_MB=max(fe.memory_bytes, fel.memory_bytes) / 1e6, estimate_us=micros))

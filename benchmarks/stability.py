@@ -214,7 +214,7 @@ def run_case(case: Case, elastic_order: int | None = None, verbose: bool = False
     (``"own"`` unless the scene says otherwise: what ``mscap simulate`` runs); ``"shared"``
     or ``"own"`` override it."""
     from mscap.errors import MscapError
-    from mscap.mesh.layered import mesh_scene
+    from mscap.mesh.layered import mesh_sheet
     from mscap.fem.petsc import set_scene_options
     from mscap.scene import load_scene
     from mscap.fem.simulate import simulate
@@ -225,7 +225,7 @@ def run_case(case: Case, elastic_order: int | None = None, verbose: bool = False
     if hessian:
         scene = dataclasses.replace(scene, elastic=dataclasses.replace(scene.elastic, hessian=hessian))
     set_scene_options(scene.petsc_options)
-    mesh = mesh_scene(scene)
+    mesh = mesh_sheet(scene.sheet)
     progress = (lambda m: print("    " + m, file=sys.stderr, flush=True)) if verbose else None
     rest_scene = dataclasses.replace(scene, poses=tuple(p for p in scene.poses if p.kind == "free")[:1])
     c0 = simulate(rest_scene, mesh=mesh).capacitance_pF[0] if rest_scene.poses else None

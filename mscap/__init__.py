@@ -4,7 +4,7 @@ The pipeline, one subpackage per stage (docs/architecture.md draws it)::
 
     scene         load_scene(path) -> Scene                 the TOML file, every check
     geometry      initial_layout(scene, k, seed, init)       plate outlines in the sheet plane
-    mesh          mesh_scene(scene) -> LayeredMesh           gmsh triangulation, layered tets
+    mesh          mesh_sheet(scene.sheet) -> LayeredMesh     gmsh triangulation, layered tets
     fem           simulate(scene) -> Simulation              per pose: Newton, then capacitances
     design        build_design(scene) -> Design;             J(q) and dJ/dq by adjoints,
                   optimize(design) -> OptimizeResult         L-BFGS with remeshing

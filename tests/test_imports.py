@@ -162,3 +162,32 @@ def test_the_floor_check_sees_an_import_inside_a_function():
     tree = ast.parse("def f():\n    from mscap.fem import simulate\nif TYPE_CHECKING:\n    import mscap.cli\n")
     assert [node.module for node in every_import(tree) if isinstance(node, ast.ImportFrom)] == ["mscap.fem"]
     assert not [node for node in every_import(tree) if isinstance(node, ast.Import)]
+
+
+#: The scene's tables a stage takes as its own input (a run's layout and its mesh sizes are
+#: a :class:`~mscap.scene.settings.Sheet`; a finer check's sizes, a skinning choice are
+#: arguments): no code rebuilds a scene around them.
+STAGE_TABLES = {"layout", "mesh", "elastic", "optimizer", "sheet_outline_mm", "layers"}
+
+
+def scene_rebuilds(tree: ast.Module) -> list[str]:
+    """``replace(<...scene>, <stage table>=...)`` calls: a scene made to carry a stage's input."""
+    found = []
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Call) and ast.unparse(node.func).split(".")[-1] == "replace" and node.args
+                and ast.unparse(node.args[0]).split(".")[-1].lower().endswith("scene")
+                and STAGE_TABLES & {k.arg for k in node.keywords}):
+            found.append(f"line {node.lineno}: {ast.unparse(node)[:80]}")
+    return found
+
+
+def test_no_scene_is_rebuilt_around_a_runs_layout_or_settings():
+    found = {name: hits for name, path in _modules().items()
+             if (hits := scene_rebuilds(ast.parse(path.read_text(encoding="utf-8"))))}
+    assert not found, f"a scene rebuilt to carry a stage's input (pass a Sheet or the settings): {found}"
+
+
+def test_the_rebuild_check_sees_one():
+    tree = ast.parse("s = replace(self.scene, layout=x)\nt = dataclasses.replace(scene, poses=p)\n"
+                     "u = replace(scene.sheet, layout=x)\n")
+    assert scene_rebuilds(tree) == ["line 1: replace(self.scene, layout=x)"]

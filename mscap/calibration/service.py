@@ -142,20 +142,20 @@ class _Task:
 def _simulate_chunk(scene: Scene, design: Candidate, poses: tuple, mesh=None) -> tuple[np.ndarray, np.ndarray]:
     """Capacitances ``(n, k)`` and wall times of ``poses`` on one mesh of ``design``.
     A chunk that fails is redone pose by pose so only the failing poses are lost (NaN)."""
-    from mscap.mesh.layered import mesh_scene
+    from mscap.mesh.layered import mesh_sheet
     from mscap.fem.simulate import simulate
-    from mscap.scene.sizing import with_layout
+    from mscap.scene.sizing import sheet_for
 
-    s = with_layout(scene, Layout(design.outlines))  # sized for its plates
+    sheet = sheet_for(scene, Layout(design.outlines))  # sized for its plates
     if design.wiring is not None:
         from mscap.fabrication.wired import readings, wired_mesh
-        mesh = mesh or wired_mesh(s, design.wiring)
+        mesh = mesh or wired_mesh(sheet, design.wiring)
     else:
-        mesh = mesh or mesh_scene(s)
+        mesh = mesh or mesh_sheet(sheet)
     try:
         if design.wiring is not None:
-            return readings(s, design.wiring, mesh, poses=poses)
-        sim = simulate(s, mesh=mesh, poses=poses)
+            return readings(scene, sheet, design.wiring, mesh, poses=poses)
+        sim = simulate(scene, mesh=mesh, poses=poses, sheet=sheet)
         return sim.capacitance_pF, np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])
     except MscapError as exc:
         if len(poses) == 1:

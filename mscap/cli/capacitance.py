@@ -47,7 +47,7 @@ def run(args) -> int:
             print("mscap: --maxwell on hand-set sizes: couplings between plates a few mm apart err 3-20 % where C "
                   "errs 1-3 % (docs/electrostatics.md); a scene without [mesh] sizes gets a mesh for them",
                   file=sys.stderr, flush=True)
-    rest = rest_capacitance(scene, order=args.order, maxwell=args.maxwell)
+    rest = rest_capacitance(scene.sheet, order=args.order, maxwell=args.maxwell)
     written = None
     if args.export:
         from mscap.viz.vtu import write_potentials

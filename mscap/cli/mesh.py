@@ -24,7 +24,7 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from mscap.mesh.io import write_mesh
-    from mscap.mesh.layered import mesh_scene
+    from mscap.mesh.layered import mesh_sheet
     from mscap.mesh.quality import mesh_report
     from mscap.mesh.triangulate import quality_grading_mm
     from mscap.outputs import output_directory, replace_file
@@ -33,7 +33,7 @@ def run(args) -> int:
     scene = load_scene(args.scene)
     out = output_directory(args.output, "mesh -o") if args.output else None  # before the work
     start = time.perf_counter()
-    mesh = mesh_scene(scene)
+    mesh = mesh_sheet(scene.sheet)
     report = mesh_report(mesh, time.perf_counter() - start)
     written = None
     if out is not None:

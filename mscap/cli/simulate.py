@@ -75,17 +75,17 @@ def _wired(args, scene) -> int:
 
     from mscap.fabrication.wired import plates_only, read_wiring_dir, readings
     from mscap.geometry.layout import Layout
-    from mscap.scene.sizing import with_layout
+    from mscap.scene.sizing import sheet_for
 
     wiring = read_wiring_dir(args.wiring)
-    scene = with_layout(scene, Layout(tuple(np.asarray(p.exterior.coords)[:-1] for p in wiring.plates)))
+    outlines = [np.asarray(p.exterior.coords)[:-1] for p in wiring.plates]
+    sheet = sheet_for(scene, Layout(tuple(outlines)))
     printer = progress_printer(args.quiet)
     say = printer or (lambda line: None)
     say("simulating the design as wired")
-    wired, _ = readings(scene, wiring, progress=printer)
+    wired, _ = readings(scene, sheet, wiring, progress=printer)
     say("simulating its plates alone on the same mesh")
-    plates, _ = readings(scene, plates_only([np.asarray(p.exterior.coords)[:-1] for p in wiring.plates],
-                                            meshed_like=wiring), progress=printer)
+    plates, _ = readings(scene, sheet, plates_only(outlines, meshed_like=wiring), progress=printer)
     names = [p.name for p in scene.poses]
     if args.json:
         print(json.dumps({"scene": scene.name, "wiring": str(args.wiring), "poses": names,

@@ -53,8 +53,8 @@ from mscap.fem.petsc import LinearSolver, Operator
 from mscap.fem import electrostatic
 from mscap.fem.simulate import Simulation, elastic_setup, element_of, factorised, solve_poses
 from mscap.fem.transfer import p1_matrix
-from mscap.mesh.layered import mesh_elastic, mesh_scene
-from mscap.scene import Scene
+from mscap.mesh.layered import mesh_elastic, mesh_sheet
+from mscap.scene.settings import ElasticSettings, Scene, Sheet
 from mscap.scene.loader import check_designable
 
 __all__ = ["DesignError", "Design", "Evaluation", "build_design", "rest_problems"]
@@ -170,12 +170,16 @@ class Evaluation:
 
 @dataclass(frozen=True, eq=False)
 class Design:
-    """Scene, rest meshes and problems (``base``: a :class:`Simulation` without poses),
-    the deformer (weights on the electrostatic 2D mesh), ``elastic_weights`` ``T2d W``
-    on the elastic mesh's 2D vertices (``None`` on a shared mesh) and the scene's
-    objective J (:func:`mscap.design.objective.layout_objective`, built once)."""
+    """Scene, the run's sheet (its layout and mesh sizes), rest meshes and problems
+    (``base``: a :class:`Simulation` without poses), the deformer (weights on the
+    electrostatic 2D mesh), ``elastic_weights`` ``T2d W`` on the elastic mesh's 2D
+    vertices (``None`` on a shared mesh) and the scene's objective J
+    (:func:`mscap.design.objective.layout_objective`, built once)."""
 
     scene: Scene
+    #: The mesh stage's input: the layout the rest meshes were made from and their sizes
+    #: (:func:`mscap.scene.sizing.sheet_for`); the scene keeps its own layout.
+    sheet: Sheet
     base: Simulation
     deformer: Deformer
     elastic_weights: np.ndarray | None
@@ -285,7 +289,7 @@ class Design:
         from mscap.fabrication.during import wiring_offset
 
         try:
-            wiring = wiring_offset(self.scene, self.deformer.outlines(q), progress, poses=self.poses)
+            wiring = wiring_offset(self.scene, self.sheet, self.deformer.outlines(q), progress, poses=self.poses)
         except FabricationError as exc:
             log.warning("routing during the optimisation: %s; J keeps %s", exc,
                         "the plates alone" if self.wiring is None else "the last route's leads")
@@ -324,7 +328,7 @@ class Design:
     @cached_property
     def errors(self) -> ErrorModel:
         """The a-priori error model of this design's meshes and poses."""
-        return error_model(self.scene, self.poses)
+        return error_model(self.sheet, self.scene.elastic, self.poses)
 
     def outline_gradient(self, q, dJ_doutlines=None) -> np.ndarray:
         """The outline part of ``dJ/dq`` ``(c, 2)``: ``w_b (B + B_area) + w_s S``
@@ -349,8 +353,8 @@ class Design:
         if base.elastic is not None and base.transfer is not None:
             weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
         # Same meshes, same patterns: the solvers (and their symbolic factorisations) carry over.
-        return Design(replace(self.scene, layout=deformer.layout(deformer.zeros())), base, deformer, weights,
-                      self.objective, self.designed, self.workspace, self.wiring)
+        return Design(self.scene, replace(self.sheet, layout=deformer.layout(deformer.zeros())), base, deformer,
+                      weights, self.objective, self.designed, self.workspace, self.wiring)
 
 
 def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:
@@ -359,10 +363,11 @@ def elastic_weights(deformer: Deformer, elastic_mesh2d) -> np.ndarray:
     return np.asarray(p1_matrix(deformer.mesh2d, elastic_mesh2d.points) @ deformer.weights)
 
 
-def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None = None, count=None,
-                 method: str | None = None, base: Simulation | None = None,
+def build_design(scene: Scene, *, sheet: Sheet | None = None, control_spacing_mm: float | None = None,
+                 count=None, method: str | None = None, base: Simulation | None = None,
                  objective: LayoutObjective | None = None, poses: DesignPoses | None = None) -> Design:
-    """Mesh ``scene`` (with ``layout`` in place of its own, if given) and build the design.
+    """Mesh ``sheet`` (default the scene's own; a start's, sized for its layout, is
+    :func:`mscap.scene.sizing.sheet_for`) and build the design of ``scene``.
 
     Controls: ``count`` per outline, else ``control_spacing_mm`` (default: the scene's
     ``[optimizer] control_spacing_mm``); ``method``: skinning (default the scene's);
@@ -370,34 +375,32 @@ def build_design(scene: Scene, *, layout=None, control_spacing_mm: float | None 
     a remesh keeps the design's own); ``poses``: the design poses (default the scene's,
     :func:`~mscap.design.readback.design_poses`; a remesh keeps the design's own).
     """
-    if layout is not None:
-        scene = replace(scene, layout=layout)
-    if method is not None:
-        scene = replace(scene, optimizer=replace(scene.optimizer, skinning=method))
+    sheet = sheet or scene.sheet
     # The stages in floor order (docs/architecture.md): the scene's design poses and
     # checks, the meshes, the rest problems on them, then the design's own objects.
     designed = poses or design_poses(scene)
     check_designable(scene, designed.poses)
     if base is None:
-        base = rest_problems(scene, designed.poses)
+        base = rest_problems(sheet, scene.elastic, designed.poses)
     settings = scene.optimizer
     spacing = None if count is not None else (control_spacing_mm or settings.control_spacing_mm)
-    deformer = build_deformer(base.mesh.mesh2d, scene.layout, spacing_mm=spacing, count=count,
+    deformer = build_deformer(base.mesh.mesh2d, sheet.layout, spacing_mm=spacing, count=count,
                               method=method or settings.skinning)
     weights = None
     if base.elastic is not None and base.transfer is not None:
         weights = elastic_weights(deformer, base.elastic.mesh.mesh2d)
-    return Design(scene, base, deformer, weights, objective or layout_objective(scene, designed=designed), designed)
+    return Design(scene, sheet, base, deformer, weights, objective or layout_objective(scene, designed=designed),
+                  designed)
 
 
-def rest_problems(scene: Scene, poses) -> Simulation:
-    """The rest meshes and problems of ``scene`` for ``poses`` (a :class:`Simulation`
-    without poses): the electrostatic mesh and the elastic one the poses need (the mesh
-    floor), then the electrostatic and elastic problems and the transfer between them (the
-    fem floor)."""
-    mesh = mesh_scene(scene)
+def rest_problems(sheet: Sheet, elastic: ElasticSettings, poses) -> Simulation:
+    """The rest meshes and problems of ``sheet`` and ``elastic`` (``[elastic]``) for
+    ``poses`` (a :class:`Simulation` without poses): the electrostatic mesh and the elastic
+    one the poses need (the mesh floor), then the electrostatic and elastic problems and
+    the transfer between them (the fem floor)."""
+    mesh = mesh_sheet(sheet)
     electrostatic.check_plates(mesh)  # a bad layout fails before the elastic mesh is made
-    elastic_mesh = None if all(p.kind == "free" for p in poses) else mesh_elastic(scene, mesh, poses)
-    problem, transfer = elastic_setup(scene, mesh, elastic_mesh=elastic_mesh, poses=poses)
-    electro = electrostatic.build_problem(mesh, scene.layers, *element_of(scene.mesh))
-    return Simulation(scene.name, mesh, problem, electro, (), {}, transfer)
+    elastic_mesh = None if all(p.kind == "free" for p in poses) else mesh_elastic(sheet, elastic, mesh, poses)
+    problem, transfer = elastic_setup(sheet, elastic, mesh, poses, elastic_mesh=elastic_mesh)
+    electro = electrostatic.build_problem(mesh, sheet.layers, *element_of(sheet.mesh))
+    return Simulation(sheet.name, mesh, problem, electro, (), {}, transfer)

@@ -84,12 +84,13 @@ def remesh(design: Design, evaluation: Evaluation) -> tuple[Design, list]:
     # 1.2 mm chords on a 10 mm radius is 0.02 mm. The chord is a whole number of fine
     # outline edges: gmsh splits each chord into ceil(chord / edge) pieces, and shorter
     # edges than the scene's would change the capacitance (by 4 % on a 1 mm mesh).
-    elastic, edge = scene.elastic, scene.mesh.edge_length_outline_mm
+    elastic, edge = scene.elastic, design.sheet.mesh.edge_length_outline_mm  # the run's sizes
     half = 0.5 * min(elastic.edge_length_outline_mm or 0.5 * elastic.edge_length_mm, elastic.edge_length_mm)
     spacing = edge * max(1, int(np.floor(half / edge + 1e-9)))
     layout = resampled_layout(design.deformer.outlines(evaluation.q), spacing, edge, scene)
     counts = np.bincount(design.deformer.control_outline, minlength=layout.k)
-    new = replace(build_design(scene, layout=layout, count=counts, objective=design.objective, poses=design.designed),
+    new = replace(build_design(scene, sheet=replace(design.sheet, layout=layout), count=counts,
+                               objective=design.objective, poses=design.designed),
                   wiring=design.wiring)  # re-routed by the optimiser
     warm = [None] * len(design.poses)
     old = evaluation.sim.elastic

@@ -148,16 +148,15 @@ class ErrorModel:
         return error_J, float(abs(np.sum(np.sign(c[a] - c[b]) * (bias[a] - bias[b]))))
 
 
-def error_model(scene, poses=None) -> ErrorModel:
-    """The :class:`ErrorModel` of ``scene``'s meshes and of ``poses`` (default its own)."""
-    poses = scene.poses if poses is None else poses
-    gap = scene.layers[2].thickness_mm
-    elastic = scene.elastic
+def error_model(sheet, elastic, poses) -> ErrorModel:
+    """The :class:`ErrorModel` of the meshes of ``sheet`` and ``elastic`` (``[elastic]``)
+    and of ``poses``."""
+    gap = sheet.layers[2].thickness_mm
     shared = elastic.mesh == "shared"
-    edge = scene.mesh.edge_length_mm if shared else elastic.edge_length_mm
-    order = scene.mesh.order if shared else elastic.order
-    element = "P1" if order == 1 else "P2 refined" if sizing.refines_pokes(scene) else "P2"
-    nu = scene.layers[2].material.poisson_ratio
+    edge = sheet.mesh.edge_length_mm if shared else elastic.edge_length_mm
+    order = sheet.mesh.order if shared else elastic.order
+    element = "P1" if order == 1 else "P2 refined" if sizing.refines_pokes(elastic, sheet.mesh) else "P2"
+    nu = sheet.layers[2].material.poisson_ratio
     errors = np.array([pose_error(p, element, edge, nu) for p in poses])
     free = [i for i, p in enumerate(poses) if getattr(p, "kind", "free") == "free"]
-    return ErrorModel(errors, sizing.rung_of(scene.mesh, gap), gap, free[0] if free else None)
+    return ErrorModel(errors, sizing.rung_of(sheet.mesh, gap), gap, free[0] if free else None)

@@ -108,7 +108,7 @@ def sensitivity_map(scene: Scene) -> SensitivityMap:
     from mscap.design.readback import design_poses
     from mscap.fem.petsc import Operator
     from mscap.fem.simulate import Simulation, elastic_setup, equilibria
-    from mscap.mesh.layered import mesh_scene
+    from mscap.mesh.layered import mesh_sheet
 
     designed = design_poses(scene)
     fam = designed.family
@@ -116,8 +116,8 @@ def sensitivity_map(scene: Scene) -> SensitivityMap:
         np.concatenate(scene.layout.outlines), 6))))
     if key in _CACHE:
         return _CACHE[key]
-    mesh = mesh_scene(scene)
-    problem, _ = elastic_setup(scene, mesh, transfer=False, poses=designed.poses)
+    mesh = mesh_sheet(scene.sheet)
+    problem, _ = elastic_setup(scene.sheet, scene.elastic, mesh, designed.poses, transfer=False)
     if problem is None:
         raise GeometryError(f"{scene.path}: every design pose is free; a sensitivity start has nothing to read")
     operator = Operator(problem)
@@ -223,11 +223,11 @@ def start_layout(scene: Scene, k: int | None, seed: int, init: str) -> Layout:
 def start_design(scene: Scene, k: int | None, seed: int, init: str):
     """One start, as ``mscap optimize`` and every start of the multi-start begin: its
     initial layout (:func:`start_layout`) and the :class:`~mscap.design.pipeline.Design` of
-    ``scene`` with that layout, its meshes sized for its plates
-    (:func:`mscap.scene.sizing.with_layout`). Returns ``(layout, design)``; ``design.poses``
-    are the design poses."""
+    ``scene`` on that layout, its meshes sized for its plates
+    (:func:`mscap.scene.sizing.sheet_for`: ``design.sheet``). Returns ``(layout, design)``;
+    ``design.poses`` are the design poses."""
     from mscap.design.pipeline import build_design
-    from mscap.scene.sizing import with_layout
+    from mscap.scene.sizing import sheet_for
 
     layout = start_layout(scene, k, seed, init)
-    return layout, build_design(with_layout(scene, layout))
+    return layout, build_design(scene, sheet=sheet_for(scene, layout))

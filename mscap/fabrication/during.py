@@ -63,9 +63,10 @@ class Reroute:
     time_s: float
 
 
-def wiring_offset(scene, outlines, progress=None, poses=None) -> WiringOffset:
+def wiring_offset(scene, sheet, outlines, progress=None, poses=None) -> WiringOffset:
     """Route ``outlines`` under ``scene``'s ``[fabrication]`` rules and simulate the leads'
-    share of every reading over ``poses`` (the design poses; default the scene's).
+    share of every reading over ``poses`` (the design poses; default the scene's) on
+    ``sheet``'s mesh sizes (the run's, :func:`mscap.scene.sizing.sheet_for`).
 
     Raises
     ------
@@ -79,10 +80,10 @@ def wiring_offset(scene, outlines, progress=None, poses=None) -> WiringOffset:
     started = time.perf_counter()
     outlines = [np.asarray(o, dtype=float) for o in outlines]
     routing = route(outlines, scene.sheet_outline_mm, scene.fabrication)
-    designed = replace(scene, layout=Layout(tuple(outlines)))
+    designed = replace(sheet, layout=Layout(tuple(outlines)))
     wiring = wiring_of(routing)
-    wired, _ = readings(designed, wiring, poses=poses)
-    plates, _ = readings(designed, plates_only(outlines, meshed_like=wiring), poses=poses)
+    wired, _ = readings(scene, designed, wiring, poses=poses)
+    plates, _ = readings(scene, designed, plates_only(outlines, meshed_like=wiring), poses=poses)
     offset = wired - plates
     if not np.isfinite(offset).all():
         raise FabricationError(f"the routed design's readings are not finite ({routing.summary()})")

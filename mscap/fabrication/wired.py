@@ -32,6 +32,7 @@ from shapely.geometry import Polygon
 from mscap.errors import FabricationError, MeshError
 from mscap.mesh.layered import BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER, LayeredMesh, extrude
 from mscap.mesh.triangulate import TriMesh, generate_2d, gmsh_model, quality_grading_mm
+from mscap.scene.settings import ElasticSettings, Scene, Sheet
 
 __all__ = ["Wiring", "wiring_of", "plates_only", "read_wiring_dir", "net_mesh", "wired_mesh", "wired_elastic_mesh",
            "readings"]
@@ -316,47 +317,49 @@ def _resampled(xy: np.ndarray, plate_edges, plate_vertices, spacing: float) -> n
     return xy[keep] if len(keep) >= 3 else xy
 
 
-def wired_mesh(scene, wiring: Wiring) -> LayeredMesh:
-    """``wiring``'s conductors meshed on ``scene``'s sheet, stack and mesh sizes: bottom
+def wired_mesh(sheet: Sheet, wiring: Wiring) -> LayeredMesh:
+    """``wiring``'s conductors meshed on ``sheet``'s outline, stack and mesh sizes: bottom
     conductor i, top conductor j."""
-    return _meshed(scene, wiring, scene.mesh)
+    return _meshed(sheet, wiring, sheet.mesh)
 
 
-def wired_elastic_mesh(scene, wiring: Wiring, poses=None) -> LayeredMesh | None:
-    """The elastic mesh of ``wiring`` on ``scene``'s ``[elastic]`` sizes and slabs: the
-    scene's own elastic mesh with the nets in place of the plates, so that every lead is
-    carbon-black silicone in its own conductive layer (the leads' stiffness); ``None`` when
-    the scene's elastic mesh is the electrostatic one (``mesh = "shared"``: the wired mesh
-    holds the nets already) or no pose (of ``poses``, default the scene's) deforms the sheet."""
+def wired_elastic_mesh(sheet: Sheet, elastic: ElasticSettings, wiring: Wiring, poses) -> LayeredMesh | None:
+    """The elastic mesh of ``wiring`` on ``elastic``'s sizes and slabs (``[elastic]``):
+    the elastic mesh of ``sheet`` with the nets in place of the plates, so that every lead
+    is carbon-black silicone in its own conductive layer (the leads' stiffness); ``None``
+    when the elastic mesh is the electrostatic one (``mesh = "shared"``: the wired mesh
+    holds the nets already) or no pose of ``poses`` deforms the sheet."""
     from mscap.mesh.layered import elastic_sizes
 
-    poses = scene.poses if poses is None else poses
-    if scene.elastic.mesh == "shared" or all(p.kind == "free" for p in poses):
+    if elastic.mesh == "shared" or all(p.kind == "free" for p in poses):
         return None
-    return _meshed(scene, wiring, elastic_sizes(scene, poses), slabs=scene.elastic.elements_through_thickness or None)
+    return _meshed(sheet, wiring, elastic_sizes(sheet, elastic, poses),
+                   slabs=elastic.elements_through_thickness or None)
 
 
-def _meshed(scene, wiring: Wiring, sizes, slabs: int | None = None) -> LayeredMesh:
-    """:func:`net_mesh` of ``wiring`` on ``scene``'s sheet and stack at ``sizes``."""
-    return net_mesh(scene.sheet_outline_mm, list(wiring.bottom), list(wiring.top), sizes,
-                    [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
+def _meshed(sheet: Sheet, wiring: Wiring, sizes, slabs: int | None = None) -> LayeredMesh:
+    """:func:`net_mesh` of ``wiring`` on ``sheet``'s outline and stack at ``sizes``."""
+    return net_mesh(sheet.outline_mm, list(wiring.bottom), list(wiring.top), sizes,
+                    sheet.thicknesses_mm, sheet.mesh.elements_per_layer,
                     snap_to=shapely.ops.unary_union(wiring.plates), geometry=wiring.regions, slabs=slabs)
 
 
-def readings(scene, wiring: Wiring, mesh: LayeredMesh | None = None, progress=None,
+def readings(scene: Scene, sheet: Sheet, wiring: Wiring, mesh: LayeredMesh | None = None, progress=None,
              stiffness: Wiring | None = None, poses=None) -> tuple[np.ndarray, np.ndarray]:
-    """Every pose of ``scene`` (or ``poses``; the scene's layout is the design's plates) simulated on the
-    wired mesh: ``(n_poses, k)`` readings, capacitor c's the mutual capacitance of its
-    row and column conductors, ``−C(bottom i, top j)`` of the Maxwell matrix (pF); and each
-    pose's wall time (s). The elastic problem holds the nets (:func:`wired_elastic_mesh`),
-    or those of ``stiffness`` (e.g. the plates alone meshed like ``wiring``: the leads as
-    soft as the silicone around them)."""
+    """Every pose of ``scene`` (or ``poses``) simulated on the wired mesh of ``wiring`` on
+    ``sheet`` (whose layout is the design's plates and whose sizes are the design's,
+    :func:`mscap.scene.sizing.sheet_for`): ``(n_poses, k)`` readings, capacitor c's the
+    mutual capacitance of its row and column conductors, ``−C(bottom i, top j)`` of the
+    Maxwell matrix (pF); and each pose's wall time (s). The elastic problem holds the nets
+    (:func:`wired_elastic_mesh`), or those of ``stiffness`` (e.g. the plates alone meshed
+    like ``wiring``: the leads as soft as the silicone around them)."""
     from mscap.fem.simulate import simulate
 
-    mesh = mesh or wired_mesh(scene, wiring)
-    elastic = wired_elastic_mesh(scene, stiffness or wiring, poses)
+    poses = scene.poses if poses is None else poses
+    mesh = mesh or wired_mesh(sheet, wiring)
+    elastic = wired_elastic_mesh(sheet, scene.elastic, stiffness or wiring, poses)
     sim = simulate(scene, mesh=mesh, keep_fields=False, progress=progress, every_plate=False, maxwell=True,
-                   elastic_mesh=elastic, poses=poses)
+                   elastic_mesh=elastic, poses=poses, sheet=sheet)
     k = mesh.n_capacitors
     out = np.array([[-pose.capacitances.maxwell_pF[i, k + j] for i, j in wiring.slots] for pose in sim.poses])
     wall = np.array([r.elastic_s + r.electrostatic_s for r in sim.poses])

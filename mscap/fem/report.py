@@ -12,10 +12,10 @@ import numpy as np
 from mscap.fem import electrostatic
 from mscap.fem.petsc import LinearSolver
 from mscap.fem.simulate import Simulation, element_of
-from mscap.mesh.layered import LayeredMesh, mesh_scene
+from mscap.mesh.layered import LayeredMesh, mesh_sheet
 
 if TYPE_CHECKING:
-    from mscap.scene.settings import Scene
+    from mscap.scene.settings import Scene, Sheet
 
 __all__ = ["simulation_record", "simulation_text", "RestCapacitance", "rest_capacitance",
            "rest_capacitance_record", "rest_capacitance_text", "maxwell_lines"]
@@ -77,23 +77,24 @@ class RestCapacitance:
     times: dict
 
 
-def rest_capacitance(scene: Scene, order: int | None = None, maxwell: bool = False) -> RestCapacitance:
-    """Mesh ``scene`` and solve its electrostatics at rest (top plate at 1 V, all other
-    plates grounded; with ``maxwell`` also the Maxwell matrix of all 2k plates, on the
-    mesh :func:`mscap.scene.sizing.for_couplings` makes of a tolerance-sized one)."""
+def rest_capacitance(sheet: Sheet, order: int | None = None, maxwell: bool = False) -> RestCapacitance:
+    """Mesh ``sheet`` (a scene's, :attr:`~mscap.scene.settings.Scene.sheet`) and solve its
+    electrostatics at rest (top plate at 1 V, all other plates grounded; with ``maxwell``
+    also the Maxwell matrix of all 2k plates, on the mesh
+    :func:`mscap.scene.sizing.for_couplings` makes of a tolerance-sized one)."""
     if maxwell:
         from dataclasses import replace
 
         from mscap.scene.sizing import for_couplings
 
-        coupled = for_couplings(scene.mesh, scene.layers[2].thickness_mm, scene.thickness_mm)
-        if coupled is not scene.mesh:
-            scene = replace(scene, mesh=coupled)
-    order = order or scene.mesh.order
+        coupled = for_couplings(sheet.mesh, sheet.layers[2].thickness_mm, sum(sheet.thicknesses_mm))
+        if coupled is not sheet.mesh:
+            sheet = replace(sheet, mesh=coupled)
+    order = order or sheet.mesh.order
     start = time.perf_counter()
-    mesh = mesh_scene(scene)
+    mesh = mesh_sheet(sheet)
     meshed = time.perf_counter()
-    problem = electrostatic.build_problem(mesh, scene.layers, *element_of(scene.mesh, order))
+    problem = electrostatic.build_problem(mesh, sheet.layers, *element_of(sheet.mesh, order))
     prepared = time.perf_counter()
     solver = LinearSolver("electro_")
     try:

@@ -22,14 +22,14 @@ from mscap.fem.elastic.loading import loading_for
 from mscap.fem.elastic.newton import ElasticState, NewtonSettings, factorise_equilibrium, solve_pose
 from mscap.fem.elastic.problem import ElasticError, ElasticProblem, build_problem
 from mscap.fem.petsc import LinearSolver, Operator
-from mscap.mesh.layered import LayeredMesh, extrude_scene, mesh_elastic, mesh_scene
+from mscap.mesh.layered import LayeredMesh, extrude_sheet, mesh_elastic, mesh_sheet
 from mscap.fem.transfer import interpolation_matrix
 
 __all__ = ["PoseResult", "Simulation", "simulate", "solve_poses", "equilibria", "capacitances", "equilibrium",
            "factorised", "elastic_setup", "elastic_transfer", "electro_vertices", "release_freed_memory", "element_of"]
 
 if TYPE_CHECKING:
-    from mscap.scene.settings import MeshSettings, Scene
+    from mscap.scene.settings import ElasticSettings, MeshSettings, Scene, Sheet
 
 log = logging.getLogger(__name__)
 
@@ -90,13 +90,18 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
              out_of_core: bool = False, progress: Callable[[str], None] | None = None,
              starts: Callable[[ElasticProblem], Sequence[np.ndarray | None]] | None = None,
              every_plate: bool = True, maxwell: bool = False, elastic_mesh: LayeredMesh | None = None,
-             poses: Sequence | None = None) -> Simulation:
+             poses: Sequence | None = None, sheet: Sheet | None = None,
+             elastic: ElasticSettings | None = None) -> Simulation:
     """Simulate every pose of ``scene`` (or ``poses``: a design's, the calibration family's grid).
 
     Parameters
     ----------
     scene
         A loaded :class:`~mscap.scene.settings.Scene`.
+    sheet, elastic
+        The mesh stage's input (a run's layout and mesh sizes,
+        :func:`mscap.scene.sizing.sheet_for`) and the ``[elastic]`` settings, in place of
+        the scene's own (a finer-mesh check's, :func:`mscap.service.accuracy.finer`).
     order, elastic_order
         Electrostatic and elastic element orders (default: the scene's).
     mesh
@@ -126,15 +131,16 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
         An elastic mesh to use instead of the scene's (a wired sensor's nets,
         :func:`mscap.fabrication.wired.wired_elastic_mesh`).
     """
+    sheet, elastic = sheet or scene.sheet, elastic or scene.elastic
     start = time.perf_counter()
     meshed_here = mesh is None
-    mesh = mesh or mesh_scene(scene)
+    mesh = mesh or mesh_sheet(sheet)
     meshed = time.perf_counter()
     electrostatic.check_plates(mesh, every_plate)  # a bad layout fails now, not after the elastic solves
     # The transfer to the electrostatic vertices is built after the elastic phase (35 MB on
     # biaxial's finer-mesh check); the elastic solves do not need it.
     poses = scene.poses if poses is None else tuple(poses)
-    problem, _ = elastic_setup(scene, mesh, elastic_order, transfer=False, elastic_mesh=elastic_mesh, poses=poses)
+    problem, _ = elastic_setup(sheet, elastic, mesh, poses, elastic_order, transfer=False, elastic_mesh=elastic_mesh)
     # Out of core (memory over speed), a mesh made here is set aside through the elastic phase
     # when the elastic mesh is another one, and extruded again from its triangulation after it:
     # 1.7 M tets, 79 MB, on biaxial's finer-mesh check, whose elastic phase is its peak.
@@ -148,7 +154,7 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
     operator = Operator(problem, out_of_core=out_of_core) if problem is not None else None
     try:
         warm = starts(problem) if starts is not None and problem is not None else None
-        states, elastic_s = equilibria(sim, poses, scene.elastic, operator, warm,
+        states, elastic_s = equilibria(sim, poses, elastic, operator, warm,
                                        keep_factorisation=keep_factorisation,
                                        progress=progress)
         del warm
@@ -157,9 +163,9 @@ def simulate(scene: Scene, order: int | None = None, elastic_order: int | None =
             operator.destroy()
     release_freed_memory()  # the elastic phase's temporaries, before the larger allocations
     try:
-        mesh = mesh if mesh2d is None else extrude_scene(scene, mesh2d)
+        mesh = mesh if mesh2d is None else extrude_sheet(sheet, mesh2d)
         sim = replace(sim, mesh=mesh, transfer=elastic_transfer(problem, mesh),
-                      electro=electrostatic.build_problem(mesh, scene.layers, *element_of(scene.mesh, order),
+                      electro=electrostatic.build_problem(mesh, sheet.layers, *element_of(sheet.mesh, order),
                                                           every_plate=every_plate))
     except BaseException:
         _free(states)
@@ -302,19 +308,18 @@ def element_of(settings: MeshSettings, order: int | None = None) -> tuple[int, s
     return order, settings.element if order == 1 else "tet"
 
 
-def elastic_setup(scene: Scene, mesh: LayeredMesh, order: int | None = None, transfer: bool = True,
-                  elastic_mesh: LayeredMesh | None = None, poses: Sequence | None = None):
-    """The elastic problem ``poses`` (default the scene's) need (``None`` if every pose is
-    free) on the scene's elastic mesh (or ``elastic_mesh``), and the transfer to
-    ``mesh``'s vertices (``None`` when shared or not asked for: :func:`elastic_transfer`
-    builds it later)."""
-    poses = scene.poses if poses is None else poses
+def elastic_setup(sheet: Sheet, elastic: ElasticSettings, mesh: LayeredMesh, poses: Sequence,
+                  order: int | None = None, transfer: bool = True, elastic_mesh: LayeredMesh | None = None):
+    """The elastic problem ``poses`` need (``None`` if every pose is free) on the elastic
+    mesh of ``elastic`` (``[elastic]``) beside ``mesh``, ``sheet``'s (or on
+    ``elastic_mesh``), and the transfer to ``mesh``'s vertices (``None`` when shared or not
+    asked for: :func:`elastic_transfer` builds it later)."""
     if all(p.kind == "free" for p in poses):
         return None, None
-    order = order or scene.elastic.order
-    _warn_p1_clamped_stretch(scene.path, order, poses)
-    _warn_p1_bending(scene.path, scene.name, order, poses, scene.elastic)
-    problem = build_problem(elastic_mesh or mesh_elastic(scene, mesh, poses), scene.layers, order)
+    order = order or elastic.order
+    _warn_p1_clamped_stretch(sheet.path, order, poses)
+    _warn_p1_bending(sheet.path, sheet.name, order, poses, elastic)
+    problem = build_problem(elastic_mesh or mesh_elastic(sheet, elastic, mesh, poses), sheet.layers, order)
     return problem, elastic_transfer(problem, mesh) if transfer else None
 
 

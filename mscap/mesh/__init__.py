@@ -4,15 +4,15 @@ evaluates finite-element shape functions.)
 
 Its public names load their module on first use::
 
-    from mscap.mesh import mesh_scene, mesh_report
-    mesh = mesh_scene(scene)                     # gmsh, extruded into layered tets
+    from mscap.mesh import mesh_sheet, mesh_report
+    mesh = mesh_sheet(scene.sheet)               # gmsh, extruded into layered tets
     mesh_report(mesh)
 """
 
 from mscap._lazy import lazy_names
 
 __all__, __getattr__ = lazy_names(__name__, {
-    "mesh_scene": "layered",
+    "mesh_sheet": "layered",
     "mesh_elastic": "layered",
     "LayeredMesh": "layered",
     "extrude": "layered",

@@ -44,9 +44,9 @@ from mscap.mesh.triangulate import quality_grading_mm
 from mscap.scene.settings import MAX_CAPACITORS
 
 if TYPE_CHECKING:
-    from mscap.scene.settings import MeshSettings, Scene
+    from mscap.scene.settings import ElasticSettings, MeshSettings, Sheet
 
-__all__ = ["SizeEstimate", "estimate_mesh", "estimate_electrostatic", "estimate_elastic", "check_scene",
+__all__ = ["SizeEstimate", "estimate_mesh", "estimate_electrostatic", "estimate_elastic", "check_meshes",
            "check_fits", "memory_limit", "check_capacitor_count", "MEMORY_ENV", "MAX_CAPACITORS", "KAPPA",
            "BYTES_PER_UNKNOWN", "BASE_BYTES", "BYTES_PER_TET", "MESH_BASE_BYTES", "MAX_GROWTH"]
 
@@ -280,13 +280,13 @@ def _plates(layout) -> tuple[float, float, int]:
     return area, perimeter, len(layout.outlines)
 
 
-def estimate_electrostatic(scene: Scene) -> SizeEstimate:
-    """The size of :func:`mscap.mesh.layered.mesh_scene` ``(scene)``."""
+def estimate_electrostatic(sheet: Sheet) -> SizeEstimate:
+    """The size of :func:`mscap.mesh.layered.mesh_sheet` ``(sheet)``."""
     from dataclasses import replace
 
-    m = scene.mesh
-    estimate = estimate_mesh(scene.sheet_outline_mm, *_plates(scene.layout), m, 5 * _count(m.elements_per_layer), m.order,
-                             "electrostatic", scene.path,
+    m = sheet.mesh
+    estimate = estimate_mesh(sheet.outline_mm, *_plates(sheet.layout), m, 5 * _count(m.elements_per_layer), m.order,
+                             "electrostatic", sheet.path,
                              {"slabs": f"[mesh] elements_per_layer = {m.elements_per_layer!r}"})
     if m.tolerance is None:
         return estimate
@@ -294,28 +294,28 @@ def estimate_electrostatic(scene: Scene) -> SizeEstimate:
     return replace(estimate, drivers=(first,) + estimate.drivers[1:])
 
 
-def estimate_elastic(scene: Scene, poses=None) -> SizeEstimate | None:
-    """The size of :func:`mscap.mesh.layered.mesh_elastic`'s own mesh for ``poses`` (default
-    the scene's; ``None`` when the elastic problem is on the electrostatic mesh)."""
+def estimate_elastic(sheet: Sheet, el: ElasticSettings, poses) -> SizeEstimate | None:
+    """The size of :func:`mscap.mesh.layered.mesh_elastic`'s own mesh of ``el``
+    (``[elastic]``) beside ``sheet``'s for ``poses`` (``None`` when the elastic problem is
+    on the electrostatic mesh)."""
     from dataclasses import replace
 
     from mscap.mesh.layered import elastic_sizes
 
-    el = scene.elastic
     if el.mesh == "shared":
         return None
     h = el.edge_length_mm
     if _finite(h) and h > 0:
-        settings = elastic_sizes(scene, poses)
+        settings = elastic_sizes(sheet, el, poses)
     else:  # the estimate names the bad key
-        settings = replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=h, fringe_distance_mm=0.0, zones=())
-    slabs = el.elements_through_thickness or 5 * _count(scene.mesh.elements_per_layer)
+        settings = replace(sheet.mesh, edge_length_mm=h, edge_length_outline_mm=h, fringe_distance_mm=0.0, zones=())
+    slabs = el.elements_through_thickness or 5 * _count(sheet.mesh.elements_per_layer)
     keys = {"edge": "[elastic] edge_length_mm", "outline": "[elastic] edge_length_outline_mm",
             "slabs": f"[elastic] elements_through_thickness = {el.elements_through_thickness!r}"
-            if el.elements_through_thickness else f"[mesh] elements_per_layer = {scene.mesh.elements_per_layer!r}",
+            if el.elements_through_thickness else f"[mesh] elements_per_layer = {sheet.mesh.elements_per_layer!r}",
             "order": "[elastic] order"}
-    return estimate_mesh(scene.sheet_outline_mm, *_plates(scene.layout), settings, slabs, el.order, "elastic", scene.path,
-                         keys, scene.layout.outlines)
+    return estimate_mesh(sheet.outline_mm, *_plates(sheet.layout), settings, slabs, el.order, "elastic", sheet.path,
+                         keys, sheet.layout.outlines)
 
 
 def _finite(value) -> bool:
@@ -401,15 +401,15 @@ def _refuse(estimate: SizeEstimate, path: str, where: str):
                     f"--max-memory-gb or {MEMORY_ENV}")
 
 
-def check_scene(scene: Scene, elastic: bool = True) -> tuple[SizeEstimate, SizeEstimate | None]:
-    """Both meshes a simulation of ``scene`` builds (the elastic one when ``elastic`` and
-    a pose needs it), each within :func:`memory_limit`. Call it first: it refuses an
-    elastic bomb before the electrostatic mesh is built."""
+def check_meshes(sheet: Sheet, elastic: ElasticSettings, poses) -> tuple[SizeEstimate, SizeEstimate | None]:
+    """Both meshes a simulation of ``poses`` builds: ``sheet``'s and, when a pose needs it,
+    the elastic one of ``elastic`` (``[elastic]``), each within :func:`memory_limit`. Call
+    it first: it refuses an elastic bomb before the electrostatic mesh is built."""
     limit = memory_limit()
-    electro = check_fits(estimate_electrostatic(scene), scene.path, limit)
-    needs = elastic and any(getattr(p, "kind", "free") != "free" for p in scene.poses)
-    el = estimate_elastic(scene) if needs else None
-    return electro, check_fits(el, scene.path, limit) if el is not None else None
+    electro = check_fits(estimate_electrostatic(sheet), sheet.path, limit)
+    needs = any(getattr(p, "kind", "free") != "free" for p in poses)
+    el = estimate_elastic(sheet, elastic, poses) if needs else None
+    return electro, check_fits(el, sheet.path, limit) if el is not None else None
 
 
 def check_capacitor_count(count, path: str, key: str = "capacitors") -> int:

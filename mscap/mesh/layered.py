@@ -26,13 +26,13 @@ from mscap.geometry.polygons import coarsened
 from mscap.mesh.triangulate import TriMesh
 
 if TYPE_CHECKING:
-    from mscap.scene.settings import MeshSettings, Scene
+    from mscap.scene.settings import ElasticSettings, MeshSettings, Sheet
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LayeredMesh", "extrude", "prisms_of", "mesh_scene", "mesh_elastic", "elastic_sizes", "elastic_layout",
-           "level_heights", "layer_fractions", "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS", "BOTTOM_PLATE_LAYER",
-           "TOP_PLATE_LAYER"]
+__all__ = ["LayeredMesh", "extrude", "prisms_of", "mesh_sheet", "extrude_sheet", "mesh_elastic", "elastic_sizes",
+           "elastic_layout", "level_heights", "layer_fractions", "tet_values", "tet_volumes", "CONDUCTIVE_LAYERS",
+           "BOTTOM_PLATE_LAYER", "TOP_PLATE_LAYER"]
 
 #: Layer indices (bottom to top) of the two conductive layers.
 BOTTOM_PLATE_LAYER, TOP_PLATE_LAYER = 1, 3
@@ -234,8 +234,9 @@ def prisms_of(mesh: LayeredMesh) -> np.ndarray:
 
 
 @timed("meshing")
-def mesh_scene(scene: Scene) -> LayeredMesh:
-    """Triangulate a :class:`~mscap.scene.settings.Scene`'s sheet and layout, then extrude it.
+def mesh_sheet(sheet: Sheet) -> LayeredMesh:
+    """Triangulate a :class:`~mscap.scene.settings.Sheet` (the sheet and its plates), then
+    extrude it through its layers.
 
     Raises
     ------
@@ -245,14 +246,14 @@ def mesh_scene(scene: Scene) -> LayeredMesh:
     from mscap.mesh.budget import check_fits, estimate_electrostatic
     from mscap.mesh.triangulate import triangulate
 
-    check_fits(estimate_electrostatic(scene), scene.path)  # before gmsh: refuses what would not fit
-    return extrude_scene(scene, triangulate(scene.sheet_outline_mm, scene.layout, scene.mesh))
+    check_fits(estimate_electrostatic(sheet), sheet.path)  # before gmsh: refuses what would not fit
+    return extrude_sheet(sheet, triangulate(sheet.outline_mm, sheet.layout, sheet.mesh))
 
 
-def extrude_scene(scene: Scene, mesh2d: TriMesh) -> LayeredMesh:
-    """``mesh2d`` extruded through ``scene``'s layers (:func:`mesh_scene`'s second half;
+def extrude_sheet(sheet: Sheet, mesh2d: TriMesh) -> LayeredMesh:
+    """``mesh2d`` extruded through ``sheet``'s layers (:func:`mesh_sheet`'s second half;
     the same mesh again from the same triangulation)."""
-    return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer)
+    return extrude(mesh2d, sheet.thicknesses_mm, sheet.mesh.elements_per_layer)
 
 
 def elastic_layout(layout: Layout, sheet_outline_mm: np.ndarray, spacing_mm: float) -> Layout:
@@ -277,45 +278,43 @@ def elastic_layout(layout: Layout, sheet_outline_mm: np.ndarray, spacing_mm: flo
     return coarse
 
 
-def elastic_sizes(scene: Scene, poses=None) -> MeshSettings:
-    """The 2D sizes of the elastic mesh of its own: ``[elastic] edge_length_mm`` (outlines:
+def elastic_sizes(sheet: Sheet, elastic: ElasticSettings, poses) -> MeshSettings:
+    """The 2D sizes of the elastic mesh of its own (``elastic``: ``[elastic]``) beside
+    ``sheet``'s electrostatic mesh: ``edge_length_mm`` (outlines:
     ``edge_length_outline_mm``, default half), no fringe grading; P1 refines under the balls
     as the electrostatic mesh does (its ``zones``), P2 under the balls and along the held
-    edges where :func:`mscap.scene.sizing.refines_pokes`
-    (:func:`~mscap.scene.sizing.p2_poke_refinement`) of ``poses`` (default the scene's)."""
+    edges of ``poses`` where :func:`mscap.scene.sizing.refines_pokes`
+    (:func:`~mscap.scene.sizing.p2_poke_refinement`)."""
     from dataclasses import replace
 
     from mscap.scene.sizing import p2_poke_refinement, refines_pokes
 
-    settings = scene.elastic
-    h = settings.edge_length_mm
-    outline = min(settings.edge_length_outline_mm or 0.5 * h, h)
-    zones, strips = scene.mesh.zones, ()
-    if settings.order != 1:
-        poses = scene.poses if poses is None else poses
-        zones, strips = p2_poke_refinement(poses, scene.sheet_outline_mm, h) if refines_pokes(scene) \
+    h = elastic.edge_length_mm
+    outline = min(elastic.edge_length_outline_mm or 0.5 * h, h)
+    zones, strips = sheet.mesh.zones, ()
+    if elastic.order != 1:
+        zones, strips = p2_poke_refinement(poses, sheet.outline_mm, h) if refines_pokes(elastic, sheet.mesh) \
             else ((), ())
-    return replace(scene.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0,
+    return replace(sheet.mesh, edge_length_mm=h, edge_length_outline_mm=outline, fringe_distance_mm=0.0,
                    zones=zones, strips=strips)
 
 
 @timed("meshing")
-def mesh_elastic(scene: Scene, mesh: LayeredMesh, poses=None) -> LayeredMesh:
-    """The elastic mesh of a scene (``[elastic]``): ``mesh`` itself when ``mesh =
-    "shared"``, else a triangulation with the outlines embedded (:func:`elastic_layout`),
-    so every tet lies inside or outside a plate, at ``edge_length_mm`` (outlines:
-    ``edge_length_outline_mm``, default half), extruded in ``elements_through_thickness``
-    even slabs (0: the levels of ``mesh``), refined for ``poses`` (default the scene's,
-    :func:`elastic_sizes`)."""
+def mesh_elastic(sheet: Sheet, elastic: ElasticSettings, mesh: LayeredMesh, poses) -> LayeredMesh:
+    """The elastic mesh (``elastic``: ``[elastic]``) beside ``mesh``, ``sheet``'s
+    electrostatic mesh: ``mesh`` itself when ``mesh = "shared"``, else a triangulation with
+    the outlines embedded (:func:`elastic_layout`), so every tet lies inside or outside a
+    plate, at ``edge_length_mm`` (outlines: ``edge_length_outline_mm``, default half),
+    extruded in ``elements_through_thickness`` even slabs (0: the levels of ``mesh``),
+    refined for ``poses`` (:func:`elastic_sizes`)."""
     from mscap.mesh.budget import check_fits, estimate_elastic
     from mscap.mesh.triangulate import triangulate
 
-    settings = scene.elastic
-    if settings.mesh == "shared":
+    if elastic.mesh == "shared":
         return mesh
-    check_fits(estimate_elastic(scene, poses), scene.path)  # before gmsh
-    sizes = elastic_sizes(scene, poses)
-    mesh2d = triangulate(scene.sheet_outline_mm, elastic_layout(scene.layout, scene.sheet_outline_mm,
-                                                                sizes.edge_length_outline_mm), sizes)
-    return extrude(mesh2d, [layer.thickness_mm for layer in scene.layers], scene.mesh.elements_per_layer,
-                   slabs=settings.elements_through_thickness or None)
+    check_fits(estimate_elastic(sheet, elastic, poses), sheet.path)  # before gmsh
+    sizes = elastic_sizes(sheet, elastic, poses)
+    mesh2d = triangulate(sheet.outline_mm, elastic_layout(sheet.layout, sheet.outline_mm,
+                                                          sizes.edge_length_outline_mm), sizes)
+    return extrude(mesh2d, sheet.thicknesses_mm, sheet.mesh.elements_per_layer,
+                   slabs=elastic.elements_through_thickness or None)

@@ -16,5 +16,5 @@ from mscap.scene.settings import Scene  # noqa: F401 (in __all__)
 
 __all__, __getattr__ = lazy_names(__name__, {
     "select_poses": "loader",
-    "with_layout": "sizing",
+    "sheet_for": "sizing",
 }, eager=("Scene", "load_scene"))

@@ -23,7 +23,8 @@ from mscap.scene.calibration import MAX_FAMILY_POSES, MAX_NOISE_RUNS, MAX_SEED, 
 
 __all__ = [
     "EPSILON0_PF_PER_MM", "Material", "Layer", "MeshSettings", "ElasticSettings", "auto_slabs", "OptimizerSettings",
-    "MultistartSettings", "FabricationSettings", "CONNECTOR_EDGES", "Scene", "LAYER_KINDS", "POSE_KINDS", "HESSIAN_MODES", "ELASTIC_MESHES",
+    "MultistartSettings", "FabricationSettings", "CONNECTOR_EDGES", "Sheet", "Scene", "LAYER_KINDS", "POSE_KINDS",
+    "HESSIAN_MODES", "ELASTIC_MESHES",
     "SKINNING_METHODS", "DISTANCES", "DESIGN_POSES", "DEFAULT_FAMILY_COUNT", "MAX_STARTS_PER_K",
     "MAX_SCENE_BYTES", "MAX_LENGTH_MM", "MIN_LENGTH_MM", "LAYER_THICKNESS_MM", "YOUNGS_MODULUS_MPA",
     "MAX_RELATIVE_PERMITTIVITY", "STRETCH_RANGE", "MAX_SLABS", "MAX_CAPACITORS", "MAX_OUTLINE_VERTICES",
@@ -396,8 +397,29 @@ class FabricationSettings:
 
 
 @dataclass(frozen=True)
+class Sheet:
+    """What the mesh stage takes: the sheet's outline, its layers, the plates on it and
+    the mesh settings sized for those plates, with the scene file and name that messages
+    name. A scene's own is :attr:`Scene.sheet`; a run's, whose plates are its layout, is
+    :func:`mscap.scene.sizing.sheet_for` (a design carries it: the scene itself is never
+    rebuilt around a run's layout)."""
+
+    path: str
+    name: str
+    outline_mm: np.ndarray
+    layers: tuple[Layer, ...]
+    layout: Layout
+    mesh: MeshSettings
+
+    @property
+    def thicknesses_mm(self) -> list[float]:
+        return [layer.thickness_mm for layer in self.layers]
+
+
+@dataclass(frozen=True)
 class Scene:
-    """A loaded, validated scene."""
+    """A loaded, validated scene: the sensor (sheet, layers, the file's own plates) and its
+    poses, with the settings each stage takes."""
 
     path: str
     name: str
@@ -420,6 +442,11 @@ class Scene:
     def thickness_mm(self) -> float:
         """Total sheet thickness."""
         return sum(layer.thickness_mm for layer in self.layers)
+
+    @property
+    def sheet(self) -> Sheet:
+        """The mesh stage's input for the scene's own layout."""
+        return Sheet(self.path, self.name, self.sheet_outline_mm, self.layers, self.layout, self.mesh)
 
     @property
     def sha256(self) -> str:

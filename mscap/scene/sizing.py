@@ -34,10 +34,10 @@ import numpy as np
 from mscap.geometry import polygons as geometry
 from mscap.geometry.layout import Layout
 from mscap.scene.poses import PokePose
-from mscap.scene.settings import Layer, MeshSettings, Scene
+from mscap.scene.settings import Layer, MeshSettings, Scene, Sheet
 
 __all__ = ["Rung", "LADDER", "STEEP", "FRINGE_STACKS", "FAR_EDGE_MM", "DEFAULT_TOLERANCE", "rung_settings",
-           "predicted_errors", "rung_of", "settings_for_tolerance", "sized", "with_layout", "poke_zones",
+           "predicted_errors", "rung_of", "settings_for_tolerance", "sized", "sheet_for", "poke_zones",
            "no_finer_than", "ZONE_RADII", "ZONE_EDGE", "CURVATURE_EDGE", "P2_ZONE_EDGE", "P2_ZONE_RADII",
            "HELD_STRIP_EDGE_MM", "HELD_STRIP_MM", "refines_pokes", "p2_poke_refinement", "bend_radius",
            "curvature_edge", "ElasticRung", "POKE_ELASTIC_LADDER", "BENDING_ELEMENT_ORDER", "elastic_for_signal",
@@ -358,24 +358,19 @@ def poke_far_edge(elastic, mesh: MeshSettings, poses, given: dict) -> float | No
     loaded = [p for p in poses if getattr(p, "kind", None) != "free"]
     if "edge_length_mm" in given or not loaded or not all(isinstance(p, PokePose) for p in loaded):
         return None
-    return POKE_FAR_EDGE_MM if _refined(elastic, mesh) else None
+    return POKE_FAR_EDGE_MM if refines_pokes(elastic, mesh) else None
 
 
-def _refined(elastic, mesh: MeshSettings) -> bool:
-    """Whether a P2 elastic mesh of its own with ``refine_pokes`` has the electrostatic
-    zones under the balls beside it (:func:`refines_pokes`)."""
-    return elastic.order == 2 and elastic.mesh == "own" and elastic.refine_pokes and bool(mesh.zones)
-
-
-def refines_pokes(scene: Scene) -> bool:
-    """Whether ``scene``'s elastic mesh gets :func:`p2_poke_refinement`: a P2 mesh of its
+def refines_pokes(elastic, mesh: MeshSettings) -> bool:
+    """Whether the elastic mesh of ``elastic`` (``[elastic]``) beside an electrostatic mesh
+    of ``mesh`` gets :func:`p2_poke_refinement`: a P2 mesh of its
     own with ``refine_pokes``, beside an electrostatic mesh refined under the balls too
     (its ``zones``: a tolerance or a signal tolerance). A finer deformation under a ball
     sampled by a coarse electrostatic mesh moves the signal away from converged:
     jobs/quick.toml's hand-set mesh has no zones, and the refined elastic mesh put its
     initial layout's min L1 at 0.632 pF against 0.600 uniform, its finer-mesh check
     reading 0.573 / 0.583 pF (docs/elastic.md)."""
-    return _refined(scene.elastic, scene.mesh)
+    return elastic.order == 2 and elastic.mesh == "own" and elastic.refine_pokes and bool(mesh.zones)
 
 
 def p2_poke_refinement(poses, sheet_outline_mm: np.ndarray, far_mm: float):
@@ -412,7 +407,8 @@ def elastic_for_signal(tolerance: float, poses, order: int | None = None) -> tup
     return rung, rung.edge_over_radius * min(radii)
 
 
-def with_layout(scene: Scene, layout: Layout) -> Scene:
-    """``scene`` with ``layout``, its mesh re-sized for that layout's plates when the scene
-    gives a tolerance (each multi-start run is sized for its own initial layout)."""
-    return replace(scene, layout=layout, mesh=sized(scene.mesh, scene.layers, layout)[0])
+def sheet_for(scene: Scene, layout: Layout) -> Sheet:
+    """The mesh stage's input for ``layout`` on ``scene``'s sheet: its mesh re-sized for
+    that layout's plates when the scene gives a tolerance (each multi-start run is sized
+    for its own initial layout; a remesh keeps its run's sizes)."""
+    return replace(scene.sheet, layout=layout, mesh=sized(scene.mesh, scene.layers, layout)[0])

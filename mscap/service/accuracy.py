@@ -25,7 +25,7 @@ import numpy as np
 from mscap.design.history import min_pairwise_l1
 
 if TYPE_CHECKING:
-    from mscap.scene.settings import Scene
+    from mscap.scene.settings import ElasticSettings, Scene, Sheet
 
 __all__ = ["ErrorEstimate", "Equilibria", "finer", "estimate_error", "out_of_core", "OUT_OF_CORE_ABOVE_BYTES"]
 
@@ -41,19 +41,18 @@ class ErrorEstimate:
     wall_s: float
 
 
-def finer(scene: Scene):
-    """``scene`` one level finer: every target edge length of ``[mesh]`` (its refinement
-    zones' too) and ``[elastic]`` halved; grading distances, slabs through the thickness and element
-    orders kept (the field through a thin layer is resolved by the slabs already,
-    docs/electrostatics.md)."""
-    mesh = replace(scene.mesh, edge_length_mm=scene.mesh.edge_length_mm / 2,
-                   edge_length_outline_mm=scene.mesh.edge_length_outline_mm / 2,
-                   zones=tuple((x, y, radius, size / 2) for x, y, radius, size in scene.mesh.zones))
-    el = scene.elastic
-    elastic = replace(el, edge_length_mm=el.edge_length_mm / 2,
-                      edge_length_outline_mm=None if el.edge_length_outline_mm is None
-                      else el.edge_length_outline_mm / 2)
-    return replace(scene, mesh=mesh, elastic=elastic)
+def finer(sheet: Sheet, elastic: ElasticSettings) -> tuple[Sheet, ElasticSettings]:
+    """``sheet`` and ``elastic`` (``[elastic]``) one level finer: every target edge length
+    of the mesh (its refinement zones' too) and of ``[elastic]`` halved; grading distances,
+    slabs through the thickness and element orders kept (the field through a thin layer is
+    resolved by the slabs already, docs/electrostatics.md)."""
+    m = sheet.mesh
+    mesh = replace(m, edge_length_mm=m.edge_length_mm / 2, edge_length_outline_mm=m.edge_length_outline_mm / 2,
+                   zones=tuple((x, y, radius, size / 2) for x, y, radius, size in m.zones))
+    fine_elastic = replace(elastic, edge_length_mm=elastic.edge_length_mm / 2,
+                           edge_length_outline_mm=None if elastic.edge_length_outline_mm is None
+                           else elastic.edge_length_outline_mm / 2)
+    return replace(sheet, mesh=mesh), fine_elastic
 
 
 #: Estimated peak (bytes, :mod:`mscap.mesh.budget`) above which the check keeps its factors
@@ -64,12 +63,12 @@ def finer(scene: Scene):
 OUT_OF_CORE_ABOVE_BYTES = 500e6
 
 
-def out_of_core(scene: Scene, poses=None) -> bool:
-    """Whether :func:`estimate_error` factorises ``scene`` (already :func:`finer`) for
-    ``poses`` (default its own) out of core."""
+def out_of_core(sheet: Sheet, elastic: ElasticSettings, poses) -> bool:
+    """Whether :func:`estimate_error` factorises ``sheet`` and ``elastic`` (already
+    :func:`finer`) for ``poses`` out of core."""
     from mscap.mesh import budget
 
-    sizes = (budget.estimate_electrostatic(scene), budget.estimate_elastic(scene, poses))
+    sizes = (budget.estimate_electrostatic(sheet), budget.estimate_elastic(sheet, elastic, poses))
     return bool(max(size.memory_bytes for size in sizes if size is not None) > OUT_OF_CORE_ABOVE_BYTES)
 
 
@@ -117,11 +116,11 @@ class Equilibria:
         return [None if u is None else mapping @ u for u in self.displacements]
 
 
-def estimate_error(scene: Scene, layout, capacitance_pF: np.ndarray,
+def estimate_error(scene: Scene, sheet: Sheet, capacitance_pF: np.ndarray,
                    warm: Equilibria | None = None, poses=None) -> ErrorEstimate:
-    """Simulate ``layout`` on :func:`finer` ``(scene)`` and compare with
-    ``capacitance_pF`` (the same layout's capacitances at the scene's own settings), over
-    ``poses`` (the design poses; default the scene's).
+    """Simulate ``sheet`` (a run's, its layout the design's) on :func:`finer` meshes
+    and compare with ``capacitance_pF`` (the same layout's capacitances at ``sheet``'s own
+    sizes), over ``poses`` (the design poses; default the scene's).
 
     ``warm``: the run's equilibria, interpolated onto the finer mesh as Newton starts
     (one load step instead of the pose's load path; the same equilibria to the Newton
@@ -130,9 +129,10 @@ def estimate_error(scene: Scene, layout, capacitance_pF: np.ndarray,
     from mscap.fem.simulate import simulate
 
     start = time.perf_counter()
-    fine_scene = replace(finer(scene), layout=layout)
-    sim = simulate(fine_scene, keep_fields=False, out_of_core=out_of_core(fine_scene, poses),
-                   starts=None if warm is None else warm.on, poses=poses)
+    poses = scene.poses if poses is None else poses
+    fine_sheet, fine_elastic = finer(sheet, scene.elastic)
+    sim = simulate(scene, keep_fields=False, out_of_core=out_of_core(fine_sheet, fine_elastic, poses),
+                   starts=None if warm is None else warm.on, poses=poses, sheet=fine_sheet, elastic=fine_elastic)
     fine = sim.capacitance_pF
     return ErrorEstimate(fine, relative_difference(capacitance_pF, fine), min_pairwise_l1(fine),
                          time.perf_counter() - start)

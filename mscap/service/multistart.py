@@ -48,7 +48,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
 from mscap.fem.simulate import release_freed_memory
-from mscap.mesh.budget import check_scene
+from mscap.mesh.budget import check_meshes
 from mscap.service.accuracy import Equilibria, estimate_error, finer
 from mscap.design.readback import read_back_estimate
 from mscap import farm
@@ -111,7 +111,7 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     layout = None
     try:
         layout, design = start_design(scene, config.k, config.seed, config.init)
-        scene = design.scene  # with the start's layout, its meshes sized for it (with_layout)
+        sheet = design.sheet  # the start's layout, its meshes sized for it (sheet_for)
         designed = design.designed  # the design poses and their family (mscap.design.readback.design_poses)
         rule, kind, verdicts = PruneRule.from_settings(scene.multistart), score_kind(scene), []
 
@@ -148,13 +148,14 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
                                      time.perf_counter() - start, rank, layout, getattr(exc, "history", ())),
                        cpu_s=meter.cpu_s, peak_rss_mb=meter.peak_rss_mb)
     if scene.multistart.error_estimate and not record.pruned:
-        record = _with_check(scene, record, final, equilibria, bound, ask, share, designed.poses)
+        record = _with_check(scene, replace(sheet, layout=final), record, equilibria, bound, ask, share,
+                             designed.poses)
     return replace(record, peak_rss_mb=meter.peak_rss_mb)  # the start's and its check's
 
 
-def _with_check(scene: Scene, record, final, equilibria, bound, ask, share=None, poses=None):
-    """``record`` with its finer-mesh check (``scene``: the start's, with its layout; over
-    its design ``poses``), unless
+def _with_check(scene: Scene, sheet, record, equilibria, bound, ask, share=None, poses=None):
+    """``record`` with its finer-mesh check of ``sheet`` (the start's sizes, its final
+    layout; over its design ``poses``), unless
     the master says a finished run of its k beats it; a failed check leaves NaN. ``share``:
     the leads' share in the record's capacitances (routed during the optimisation), held
     on the finer mesh too, so that the check measures the plates' discretisation alone."""
@@ -170,7 +171,7 @@ def _with_check(scene: Scene, record, final, equilibria, bound, ask, share=None,
     cpu = time.process_time()
     try:
         plates = record.final_capacitance_pF if share is None else record.final_capacitance_pF - share
-        check = estimate_error(scene, final, plates, equilibria, poses)
+        check = estimate_error(scene, sheet, plates, equilibria, poses)
     except Exception as exc:  # the run stands; only its accuracy is unknown
         log.warning("start %s: the finer-mesh error estimate failed (%s: %s); stored as NaN",
                     record.id, type(exc).__name__, exc)
@@ -202,23 +203,23 @@ def run_check(scene: Scene, record, ask: Callable | None = None):
     from mscap.design.readback import design_poses
     from mscap.design.starts import start_layout
     from mscap.geometry.layout import Layout
-    from mscap.scene.sizing import with_layout
+    from mscap.scene.sizing import sheet_for
 
     release_freed_memory()
     meter = Meter()
-    start_scene = with_layout(scene, start_layout(scene, record.k, record.seed, record.init))
+    sheet = sheet_for(scene, start_layout(scene, record.k, record.seed, record.init))  # the start's sizes
     designed = design_poses(scene)
     share = None  # the leads' share in the stored capacitances is not stored: routed again
-    if start_scene.fabrication.route_during_optimisation:
+    if scene.fabrication.route_during_optimisation:
         from mscap.errors import FabricationError
         from mscap.fabrication.during import wiring_offset
 
         try:
-            share = wiring_offset(start_scene, record.final_outlines, poses=designed.poses).offset_pF
+            share = wiring_offset(scene, sheet, record.final_outlines, poses=designed.poses).offset_pF
         except FabricationError as exc:
             log.warning("start %s: its design no longer routes (%s); checked as plates alone", record.id, exc)
-    checked = _with_check(start_scene, record, Layout(tuple(record.final_outlines)), None,
-                          read_back_estimate(start_scene, designed), ask, share, designed.poses)
+    checked = _with_check(scene, replace(sheet, layout=Layout(tuple(record.final_outlines))), record, None,
+                          read_back_estimate(scene, designed), ask, share, designed.poses)
     # The larger of the run's peak (an earlier session's; NaN if not stored) and the check's here.
     peak = meter.peak_rss_mb if not record.peak_rss_mb > meter.peak_rss_mb else record.peak_rss_mb
     return replace(checked, peak_rss_mb=peak)
@@ -301,9 +302,9 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
     say = heartbeat.say
     # Every start meshes the scene and, when checked, its finer mesh: refuse a mesh beyond
     # memory now, not at the end of the first start.
-    check_scene(scene)
+    check_meshes(scene.sheet, scene.elastic, scene.poses)
     if scene.multistart.error_estimate:
-        check_scene(finer(scene))
+        check_meshes(*finer(scene.sheet, scene.elastic), scene.poses)
     rule, kind = prune_rule(scene), score_kind(scene)
     store = open_store(path, scene, mpi_size=size, force=force)
     done = failed = 0

@@ -128,8 +128,8 @@ def test_the_refined_p2_scene_is_refined(tmp_path_factory):
     from mscap.scene.sizing import refines_pokes
 
     scene = load(SCENES["poke_p2_refined"](), tmp_path_factory, "refined")
-    sizes = elastic_sizes(scene)
-    assert refines_pokes(scene) and sizes.zones and sizes.strips
+    sizes = elastic_sizes(scene.sheet, scene.elastic, scene.poses)
+    assert refines_pokes(scene.elastic, scene.mesh) and sizes.zones and sizes.strips
 
 
 def test_min_pairwise_l1():

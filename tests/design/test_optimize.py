@@ -369,7 +369,7 @@ def test_remesh_keeps_the_outlines_and_warm_starts(poke_scene):
     new, warm = remesh(design, e)
     # The new outlines are polygons through points of the old ones (every 1 mm here, the
     # half elastic outline edge), so the old outlines lie within the chordal error.
-    for old, polygon, chain in zip(design.deformer.outlines(q), new.scene.layout.outlines,
+    for old, polygon, chain in zip(design.deformer.outlines(q), new.sheet.layout.outlines,
                                    new.deformer.outlines(new.deformer.zeros())):
         assert geometry.point_segment_distance(polygon, geometry.edges(old)).min(axis=1).max() < 1e-9
         assert geometry.point_segment_distance(old, geometry.edges(chain)).min(axis=1).max() < 0.05

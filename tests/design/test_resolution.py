@@ -98,7 +98,7 @@ def test_a_sized_mesh_knows_its_rung_and_a_hand_set_one_does_not(tmp_path):
     _, chosen, _ = sizing.settings_for_tolerance(scene.mesh.tolerance, scene.layout.outlines, gap,
                                                  sum(layer.thickness_mm for layer in scene.layers))
     assert sizing.rung_of(scene.mesh, gap) == chosen
-    m = error_model(scene)
+    m = error_model(scene.sheet, scene.elastic, scene.poses)
     f = m.plate_errors(scene.layout.outlines)
     np.testing.assert_allclose(f, sizing.predicted_errors(chosen, scene.layout.outlines, gap))
     assert sizing.rung_of(dataclasses.replace(scene.mesh, tolerance=None), gap) is None

@@ -10,7 +10,7 @@ import pytest
 from mscap.design.starts import capacitance_density, sensitivity_layout, sensitivity_map, start_layout
 from mscap.errors import GeometryError, SceneError
 from mscap.fem.simulate import elastic_setup
-from mscap.mesh.layered import mesh_scene
+from mscap.mesh.layered import mesh_sheet
 from mscap.scene import load_scene
 from mscap.service.selection import configurations
 from tests.conftest import to_toml
@@ -26,7 +26,7 @@ def test_capacitance_density_of_a_homogeneous_deformation(tmp_path):
     path = tmp_path / "s.toml"
     path.write_text(to_toml(scene_dict(poses=STRETCH)))
     scene = load_scene(path)
-    problem, _ = elastic_setup(scene, mesh_scene(scene), transfer=False)
+    problem, _ = elastic_setup(scene.sheet, scene.elastic, mesh_sheet(scene.sheet), scene.poses, transfer=False)
     a, b, c, shear = 1.3, 0.9, 0.8, 0.25
     f = np.array([[a, shear, 0.0], [0.0, b, 0.0], [0.0, 0.0, c]])
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])

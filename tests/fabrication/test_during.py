@@ -60,8 +60,8 @@ def test_the_leads_share_is_what_routing_adds_and_is_swapped_without_a_solve(des
     # A 2 x 1 array without a crossing: the leads only fringe into the other layer's plates
     # and leads, 0.2-1.3 % of a reading (column C0's lead runs past R1's plate).
     assert np.all(share > 0) and np.all(share < 0.02 * plates.capacitance_pF)
-    np.testing.assert_array_equal(share, wiring_offset(design.scene, design.deformer.outlines(q0),
-                                                             poses=design.poses).offset_pF)
+    np.testing.assert_array_equal(share, wiring_offset(design.scene, design.sheet, design.deformer.outlines(q0),
+                                                       poses=design.poses).offset_pF)
     e = routed.evaluate(q0, warm=plates)
     np.testing.assert_allclose(e.capacitance_pF - e.offset_pF, plates.capacitance_pF, rtol=1e-9)
     swapped = routed.reevaluated(plates)  # the plates' solve, the share put in: the same J
@@ -104,7 +104,7 @@ def test_an_optimisation_routes_at_its_start_and_end(scene_path):
     assert start.J_before != start.J_after and start.J_after == result.history[0].J
     # The last evaluation is the routed sensor's at the final outlines.
     final = result.evaluation
-    share = wiring_offset(result.design.scene, result.design.deformer.outlines(final.q),
+    share = wiring_offset(result.design.scene, result.design.sheet, result.design.deformer.outlines(final.q),
                           poses=result.design.poses).offset_pF
     np.testing.assert_allclose(final.offset_pF, share, rtol=1e-12)
     assert result.history[-1].J == final.J == result.reroutes[-1].J_after

@@ -29,7 +29,7 @@ def routed(tmp_path_factory):
 
 def test_the_wired_mesh_holds_each_net_in_its_own_layer(routed):
     scene, _, routing, _ = routed
-    mesh = wired_mesh(scene, wiring_of(routing))
+    mesh = wired_mesh(scene.sheet, wiring_of(routing))
     areas = mesh.mesh2d.areas()[mesh.triangle_of_tet]
     for layer, nets in ((BOTTOM_PLATE_LAYER, routing.layer("bottom")), (TOP_PLATE_LAYER, routing.layer("top"))):
         for i, net in enumerate(nets):
@@ -45,8 +45,8 @@ def test_a_lead_crossing_adds_its_capacitance_to_its_slot_alone(routed):
     slot = (crossing["row"], crossing["column"])
     c = routing.array.slots.index(slot)
     wiring = wiring_of(routing)
-    wired, _ = readings(scene, wiring)
-    plates, _ = readings(scene, plates_only(outlines, meshed_like=wiring))
+    wired, _ = readings(scene, scene.sheet, wiring)
+    plates, _ = readings(scene, scene.sheet, plates_only(outlines, meshed_like=wiring))
     # εr 2.84 across the 0.14 mm middle layer; a 1 mm wide crossing fringes by as much again
     parallel = crossing["area_mm2"] * 2.84 * EPSILON0_PF_PER_MM / 0.14
     added = wired[0] - plates[0]
@@ -124,8 +124,8 @@ def test_the_leads_share_on_one_mesh_is_mesh_converged_where_the_readings_are_no
                                            fabrication={"connector_edge": "bottom", "assignments": 2})))
         scene = load_scene(path)
         wiring = wiring_of(route(scene.layout.outlines, scene.sheet_outline_mm, scene.fabrication))
-        as_wired, _ = readings(scene, wiring)
-        alone, _ = readings(scene, plates_only(scene.layout.outlines, meshed_like=wiring))
+        as_wired, _ = readings(scene, scene.sheet, wiring)
+        alone, _ = readings(scene, scene.sheet, plates_only(scene.layout.outlines, meshed_like=wiring))
         shares.append(as_wired[0] - alone[0])
         wired.append(as_wired[0])
     coarse, fine = shares
@@ -141,7 +141,7 @@ def test_each_conductive_layer_is_carbon_black_inside_its_own_nets_only(routed):
     from mscap.mesh.layered import tet_values
 
     scene, _, routing, _ = routed
-    mesh = wired_mesh(scene, wiring_of(routing))
+    mesh = wired_mesh(scene.sheet, wiring_of(routing))
     mu = tet_values(mesh, scene.layers, lambda material: material.lame_MPa[0])
     carbon, clear = (scene.layers[BOTTOM_PLATE_LAYER].material.lame_MPa[0],
                      scene.layers[BOTTOM_PLATE_LAYER].fill.lame_MPa[0])
@@ -161,8 +161,8 @@ def test_the_plates_alone_are_meshed_on_the_wired_designs_very_triangulation(rou
     fragmenting and meshing was 8 of the glove design's 30 s of wired readings)."""
     scene, outlines, routing, _ = routed
     wiring = wiring_of(routing)
-    wired, alone = wired_mesh(scene, wiring), wired_mesh(scene, plates_only(outlines, meshed_like=wiring))
+    wired, alone = wired_mesh(scene.sheet, wiring), wired_mesh(scene.sheet, plates_only(outlines, meshed_like=wiring))
     assert alone.mesh2d.points is wired.mesh2d.points and alone.mesh2d.triangles is wired.mesh2d.triangles
     assert not np.array_equal(alone.capacitor_of_tet, wired.capacitor_of_tet)  # the labels differ
-    own = wired_mesh(scene, plates_only(outlines))  # other curves: another triangulation
+    own = wired_mesh(scene.sheet, plates_only(outlines))  # other curves: another triangulation
     assert len(own.mesh2d.points) != len(wired.mesh2d.points)

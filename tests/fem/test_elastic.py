@@ -505,7 +505,7 @@ def test_out_of_core_sets_its_own_electrostatic_mesh_aside_through_the_elastic_p
     own needs nothing of it; 79 MB of biaxial's check) and extrudes it again from its
     triangulation: the same tets, points and capacitances as with that mesh given."""
     import mscap.fem.simulate as simulation
-    from mscap.mesh.layered import mesh_scene
+    from mscap.mesh.layered import mesh_sheet
 
     monkeypatch.setenv("MUMPS_OOC_TMPDIR", str(tmp_path))
     data = scene_dict(
@@ -520,7 +520,7 @@ def test_out_of_core_sets_its_own_electrostatic_mesh_aside_through_the_elastic_p
         return solve_equilibria(sim, *args, **kwargs)
 
     monkeypatch.setattr(simulation, "equilibria", equilibria)
-    given = mesh_scene(scene)
+    given = mesh_sheet(scene.sheet)
     aside = simulate(scene, out_of_core=True)
     kept = simulate(scene, out_of_core=True, mesh=given)
     in_core = simulate(scene)

@@ -19,7 +19,7 @@ from mscap.fem.simulate import simulate
 from mscap.errors import GeometryError
 from mscap.geometry.layout import Layout, check_layout
 from mscap.geometry.polygons import coarsened, square
-from mscap.mesh.layered import elastic_layout, extrude, layer_fractions, mesh_elastic, mesh_scene
+from mscap.mesh.layered import elastic_layout, extrude, layer_fractions, mesh_elastic, mesh_sheet
 from mscap.fem import transfer
 from mscap.fem.transfer import interpolation_matrix, locate
 from mscap.scene import load_scene
@@ -255,16 +255,17 @@ def test_bad_elastic_mesh_settings_name_the_key(write_scene, small_scene_dict, k
 def test_mesh_elastic_builds_what_the_scene_asks_for(small_scene_dict, write_scene):
     small_scene_dict["elastic"] = {"mesh": "shared"}
     scene = load_scene(write_scene(small_scene_dict))
-    mesh = mesh_scene(scene)
-    assert mesh_elastic(scene, mesh) is mesh
+    mesh = mesh_sheet(scene.sheet)
+    assert mesh_elastic(scene.sheet, scene.elastic, mesh, scene.poses) is mesh
     # The defaults: its own mesh, one element through the whole stack.
     default = dataclasses.replace(scene, elastic=ElasticSettings())
-    own = mesh_elastic(default, mesh)
+    own = mesh_elastic(default.sheet, default.elastic, mesh, default.poses)
     np.testing.assert_array_equal(own.level_z_mm, [0.0, mesh.level_z_mm[-1]])
     assert len(own.mesh2d.points) < 0.5 * len(mesh.mesh2d.points)
     # 0 through the thickness: the electrostatic levels.
     levels = dataclasses.replace(scene, elastic=ElasticSettings(edge_length_mm=6.0, elements_through_thickness=0))
-    np.testing.assert_array_equal(mesh_elastic(levels, mesh).level_z_mm, mesh.level_z_mm)
+    on_levels = mesh_elastic(levels.sheet, levels.elastic, mesh, levels.poses)
+    np.testing.assert_array_equal(on_levels.level_z_mm, mesh.level_z_mm)
     # The outlines are embedded: the plate areas are the same on both meshes.
     for m in (mesh, own):
         areas = m.mesh2d.areas()
@@ -322,9 +323,9 @@ def test_elastic_mesh_does_not_embed_every_vertex_of_an_optimised_outline(small_
                                                     endpoint=False)[:, None] * (b - a)
                                     for a, b in zip(o, np.roll(o, -1, axis=0))]) for o in scene.layout.outlines))
     assert min(len(o) for o in dense.outlines) > 600
-    mesh = mesh_scene(scene)
-    plain = mesh_elastic(scene, mesh)
-    optimised = mesh_elastic(dataclasses.replace(scene, layout=dense), mesh)
+    mesh = mesh_sheet(scene.sheet)
+    plain = mesh_elastic(scene.sheet, scene.elastic, mesh, scene.poses)
+    optimised = mesh_elastic(dataclasses.replace(scene.sheet, layout=dense), scene.elastic, mesh, scene.poses)
     assert len(optimised.mesh2d.points) < 1.3 * len(plain.mesh2d.points)
     for m in (plain, optimised):  # both still embed the plates exactly (straight edges)
         areas = m.mesh2d.areas()

@@ -28,13 +28,13 @@ def test_estimate_within_30_percent_of_the_meshes_gmsh_makes(name):
     """Vertices and tets of both meshes within 30 % (two of the fit's 44 meshes: tets
     quick +10 % / −12 %, poking_quick +23 % / +4 %, electrostatic / elastic,
     docs/size_estimate.csv)."""
-    from mscap.mesh.layered import mesh_elastic, mesh_scene
+    from mscap.mesh.layered import mesh_elastic, mesh_sheet
 
     scene = load_scene(ROOT / "jobs" / f"{name}.toml")
-    mesh = mesh_scene(scene)
-    elastic = mesh_elastic(scene, mesh)
-    for estimate, actual in ((budget.estimate_electrostatic(scene), mesh),
-                             (budget.estimate_elastic(scene), elastic)):
+    mesh = mesh_sheet(scene.sheet)
+    elastic = mesh_elastic(scene.sheet, scene.elastic, mesh, scene.poses)
+    for estimate, actual in ((budget.estimate_electrostatic(scene.sheet), mesh),
+                             (budget.estimate_elastic(scene.sheet, scene.elastic, scene.poses), elastic)):
         assert estimate.tets == pytest.approx(len(actual.tets), rel=0.3), estimate.problem
         assert estimate.vertices == pytest.approx(len(actual.points), rel=0.3), estimate.problem
 
@@ -64,13 +64,13 @@ def test_bombs_refused_in_microseconds_naming_the_key(name, monkeypatch):
     import mscap.mesh.triangulate as triangulate
 
     def mesher(*args, **kwargs):
-        raise AssertionError("check_scene called the mesher")
+        raise AssertionError("check_meshes called the mesher")
 
     monkeypatch.setattr(triangulate, "_triangulate", mesher)
     monkeypatch.setenv(budget.MEMORY_ENV, "20")
     scene = bomb(name)
     with pytest.raises(MeshError) as err:
-        budget.check_scene(scene)
+        budget.check_meshes(scene.sheet, scene.elastic, scene.poses)
     message = str(err.value)
     assert message.startswith(f"{scene.path}: the ") and BOMBS[name][2] in message
     assert "sheet 40 x 30 mm" in message and "the limit is 20 GB (MSCAP_MAX_MEMORY_GB)" in message
@@ -84,17 +84,18 @@ ADDRESS_SPACE = 2 * 1024 ** 3
 
 @pytest.mark.parametrize("name", sorted(BOMBS))
 def test_bombs_refused_before_any_allocation(name):
-    """Under RLIMIT_AS = 2 GB, mesh_scene (every command's electrostatic mesh) and
+    """Under RLIMIT_AS = 2 GB, mesh_sheet (every command's electrostatic mesh) and
     mesh_elastic refuse with the one-line error: no MemoryError, gmsh never loaded,
     within the timeout."""
     table, change, _ = BOMBS[name]
-    call = "mesh_scene(scene)" if table == "mesh" else "mesh_elastic(scene, None)"
+    call = ("mesh_sheet(scene.sheet)" if table == "mesh"
+            else "mesh_elastic(scene.sheet, scene.elastic, None, scene.poses)")
     code = textwrap.dedent(f"""
         import resource, sys, time
         from dataclasses import replace
         resource.setrlimit(resource.RLIMIT_AS, ({ADDRESS_SPACE}, {ADDRESS_SPACE}))
         from mscap.errors import MeshError
-        from mscap.mesh.layered import mesh_elastic, mesh_scene
+        from mscap.mesh.layered import mesh_elastic, mesh_sheet
         from mscap.scene import load_scene
         scene = load_scene('jobs/quick.toml')
         scene = replace(scene, {table}=replace(scene.{table}, **{change!r}))
@@ -131,9 +132,9 @@ def test_the_limit_comes_from_the_environment_or_the_machine(monkeypatch):
 
 def test_a_raised_limit_lets_a_large_mesh_through(monkeypatch):
     scene = bomb("outline_1e-4")
-    estimate = budget.estimate_electrostatic(scene)
+    estimate = budget.estimate_electrostatic(scene.sheet)
     monkeypatch.setenv(budget.MEMORY_ENV, repr(2 * estimate.memory_bytes / 1e9))
-    assert budget.check_scene(scene)[0] == estimate
+    assert budget.check_meshes(scene.sheet, scene.elastic, scene.poses)[0] == estimate
 
 
 def test_command_line_option_sets_the_environment(monkeypatch):
@@ -213,12 +214,13 @@ def test_a_p2_elastic_mesh_is_refined_under_the_ball_and_along_the_held_edges(tm
                       elastic={"order": 2, "edge_length_mm": 5.0})
     hand_set = tmp_path / "hand_set.toml"
     hand_set.write_text(to_toml(data))
-    assert elastic_sizes(load_scene(hand_set)).zones == ()
+    hand = load_scene(hand_set)
+    assert elastic_sizes(hand.sheet, hand.elastic, hand.poses).zones == ()
     del data["mesh"]  # sized by the default tolerance: zones under the ball
     path = tmp_path / "poke.toml"
     path.write_text(to_toml(data))
     scene = load_scene(path)
-    sizes = elastic_sizes(scene)
+    sizes = elastic_sizes(scene.sheet, scene.elastic, scene.poses)
     assert sizes.zones == ((20.0, 20.0, 5.0, 1.5),) and len(sizes.strips) == 2
     mesh = triangulate(scene.sheet_outline_mm, scene.layout, sizes)
     edges = mesh.edges()
@@ -230,8 +232,10 @@ def test_a_p2_elastic_mesh_is_refined_under_the_ball_and_along_the_held_edges(tm
     assert length[under].max() <= 1.3 * 1.5 and length[held].max() <= 1.3 * 2.0
     assert length[free].max() > 3.5  # the free edges keep the far edge
     uniform = replace(scene, elastic=replace(scene.elastic, refine_pokes=False))
-    assert elastic_sizes(uniform).zones == elastic_sizes(uniform).strips == ()
-    refined, plain = estimate_elastic(scene).triangles, estimate_elastic(uniform).triangles
+    uniform_sizes = elastic_sizes(uniform.sheet, uniform.elastic, uniform.poses)
+    assert uniform_sizes.zones == uniform_sizes.strips == ()
+    refined = estimate_elastic(scene.sheet, scene.elastic, scene.poses).triangles
+    plain = estimate_elastic(uniform.sheet, uniform.elastic, uniform.poses).triangles
     actual, plain_actual = len(mesh.triangles), len(triangulate(scene.sheet_outline_mm, scene.layout,
-                                                                elastic_sizes(uniform)).triangles)
+                                                                uniform_sizes).triangles)
     assert refined - plain >= 0.8 * (actual - plain_actual) > 0

@@ -10,7 +10,7 @@ import pytest
 from mscap.cli import main
 from mscap.geometry import polygons as geometry
 from mscap.mesh.io import read_mesh, write_mesh
-from mscap.mesh.layered import CONDUCTIVE_LAYERS, extrude, mesh_scene
+from mscap.mesh.layered import CONDUCTIVE_LAYERS, extrude, mesh_sheet
 from mscap.mesh.quality import aspect_ratios, dihedral_angles_deg, triangle_angles_deg
 from mscap.mesh.triangulate import TriMesh
 from mscap.scene import load_scene
@@ -27,7 +27,7 @@ def scene_and_mesh(request, tmp_path_factory):
     path = tmp_path_factory.mktemp("scene") / "small.toml"
     path.write_text(to_toml(data))
     scene = load_scene(path)
-    return scene, mesh_scene(scene)
+    return scene, mesh_sheet(scene.sheet)
 
 
 def boundary_edges_2d(triangles: np.ndarray) -> np.ndarray:
@@ -209,12 +209,12 @@ def test_meshing_keeps_the_processs_signal_handling(tmp_path):
     path.write_text(to_toml(SMALL_SCENE))
     child = (
         "import os, signal, sys\n"
-        "from mscap.mesh.layered import mesh_scene\n"
+        "from mscap.mesh.layered import mesh_sheet\n"
         "from mscap.scene import load_scene\n"
         "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
         "seen = []\n"
         "signal.signal(signal.SIGUSR1, lambda *a: seen.append(1))\n"
-        f"mesh_scene(load_scene({str(path)!r}))\n"
+        f"mesh_sheet(load_scene({str(path)!r}).sheet)\n"
         "os.kill(os.getpid(), signal.SIGTERM)\n"
         "os.kill(os.getpid(), signal.SIGUSR1)\n"
         "print('alive', len(seen))\n"

@@ -11,7 +11,7 @@ import pytest
 from mscap.fem import electrostatic as es
 from mscap.geometry.polygons import disk, square
 from mscap.scene import sizing
-from mscap.mesh.layered import mesh_scene
+from mscap.mesh.layered import mesh_sheet
 from mscap.errors import SceneError
 from mscap.scene import load_scene
 from tests.conftest import to_toml
@@ -42,7 +42,7 @@ def plate_scene(tmp_path, name, mesh=None):
 
 
 def capacitance(scene):
-    problem = es.build_problem(mesh_scene(scene), scene.layers, scene.mesh.order, scene.mesh.element)
+    problem = es.build_problem(mesh_sheet(scene.sheet), scene.layers, scene.mesh.order, scene.mesh.element)
     return float(es.solve(problem).capacitance_pF[0])
 
 
@@ -118,19 +118,20 @@ def test_size_keys_given_with_a_tolerance_override_the_ladder(tmp_path):
 
 def test_each_layout_is_sized_for_its_own_plates_and_hand_sizes_stay(tmp_path):
     # A multi-start run, `mscap optimize` and the calibration size the mesh for the layout
-    # they simulate (sizing.with_layout); a layout of small plates needs a finer mesh.
+    # they simulate (sizing.sheet_for); a layout of small plates needs a finer mesh.
     from mscap.geometry.layout import Layout
 
     scene = plate_scene(tmp_path, "square 20", {"tolerance": 0.01, "edge_length_mm": 4.0})
     small = Layout((square((15.0, 15.0), 6.0), square((25.0, 25.0), 6.0)))
-    resized = sizing.with_layout(scene, small)
+    resized = sizing.sheet_for(scene, small)
     expected, _, _ = sizing.settings_for_tolerance(0.01, small.outlines, GAP_MM, STACK, far_mm=4.0)
     assert resized.layout is small and resized.mesh.edge_length_mm == 4.0
     assert dataclasses.replace(resized.mesh, tolerance=None, overrides=()) == expected
     assert resized.mesh.edge_length_outline_mm < scene.mesh.edge_length_outline_mm
     hand = plate_scene(tmp_path, "square 20", {"edge_length_mm": 5.0, "edge_length_outline_mm": 0.3,
                                                "grading_distance_mm": 2.0})
-    assert sizing.with_layout(hand, small).mesh == hand.mesh
+    assert sizing.sheet_for(hand, small).mesh == hand.mesh
+    assert hand.layout is not small  # the scene keeps its own plates
 
 
 def test_both_meshes_are_refined_under_each_ball(tmp_path):
@@ -147,8 +148,8 @@ def test_both_meshes_are_refined_under_each_ball(tmp_path):
     path.write_text(to_toml(data))
     scene = load_scene(path)
     assert scene.mesh.zones == ((15.0, 15.0, 7.5, 0.625),)
-    electro = mesh_scene(scene)
-    for mesh in (electro.mesh2d, mesh_elastic(scene, electro).mesh2d):
+    electro = mesh_sheet(scene.sheet)
+    for mesh in (electro.mesh2d, mesh_elastic(scene.sheet, scene.elastic, electro, scene.poses).mesh2d):
         pairs = mesh.edges()
         lengths = np.linalg.norm(mesh.points[pairs[:, 0]] - mesh.points[pairs[:, 1]], axis=1)
         middle = np.linalg.norm(0.5 * (mesh.points[pairs[:, 0]] + mesh.points[pairs[:, 1]]) - 15.0, axis=1)
@@ -156,8 +157,7 @@ def test_both_meshes_are_refined_under_each_ball(tmp_path):
         assert inside.sum() > 300 and lengths[inside].max() < 1.5 * 0.625, lengths[inside].max()
         assert lengths[middle > 12.0].max() > 2.0  # coarser away from the ball
     # A P2 elastic mesh is not refined there (it reads the gains as well without, 4× cheaper)
-    quadratic = mesh_elastic(dataclasses.replace(scene, elastic=dataclasses.replace(scene.elastic, order=2)),
-                             electro).mesh2d
+    quadratic = mesh_elastic(scene.sheet, dataclasses.replace(scene.elastic, order=2), electro, scene.poses).mesh2d
     pairs = quadratic.edges()
     middle = np.linalg.norm(0.5 * (quadratic.points[pairs[:, 0]] + quadratic.points[pairs[:, 1]]) - 15.0, axis=1)
     lengths = np.linalg.norm(quadratic.points[pairs[:, 0]] - quadratic.points[pairs[:, 1]], axis=1)
@@ -199,7 +199,7 @@ def test_a_tiny_ball_asks_for_no_edge_finer_than_the_outlines(tmp_path):
     poses = [replace(p, radius_mm=1e-3) if p.name == data["poses"][1]["name"] else p for p in scene.poses]
     (zone,) = sizing.no_finer_than(sizing.poke_zones(poses), scene.mesh.edge_length_outline_mm)
     assert zone[3] == scene.mesh.edge_length_outline_mm
-    assert len(mesh_scene(replace(scene, mesh=replace(scene.mesh, zones=(zone,)))).mesh2d.points) < 50_000
+    assert len(mesh_sheet(replace(scene.sheet, mesh=replace(scene.mesh, zones=(zone,)))).mesh2d.points) < 50_000
     data["poses"][1]["radius_mm"] = 1e-3
     path.write_text(to_toml(data))
     with pytest.raises(SceneError, match="radius_mm"):
@@ -223,7 +223,7 @@ def test_a_glued_bend_caps_the_far_edge_at_a_quarter_of_its_radius(tmp_path, rad
     assert scene.mesh.edge_length_mm == pytest.approx(min(sizing.FAR_EDGE_MM, sizing.CURVATURE_EDGE * radius),
                                                       rel=1e-3)
     # a remeshed layout keeps the cap; a far edge the scene gives wins; no glued pose, no cap
-    assert sizing.with_layout(scene, scene.layout).mesh.edge_length_mm == scene.mesh.edge_length_mm
+    assert sizing.sheet_for(scene, scene.layout).mesh.edge_length_mm == scene.mesh.edge_length_mm
     data["mesh"] = {"tolerance": 0.01, "edge_length_mm": 4.0}
     path.write_text(to_toml(data))
     assert load_scene(path).mesh.edge_length_mm == 4.0

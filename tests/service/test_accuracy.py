@@ -26,14 +26,20 @@ def stretch_scene(write_scene):
     return load_scene(write_scene(data))
 
 
+def simulate_finer(scene, **options):
+    """``scene`` simulated one level finer (:func:`finer`)."""
+    sheet, elastic = finer(scene.sheet, scene.elastic)
+    return simulate(scene, sheet=sheet, elastic=elastic, **options)
+
+
 def test_finer_halves_every_edge_length_and_keeps_the_rest(stretch_scene):
-    s = finer(stretch_scene)
+    s, elastic = finer(stretch_scene.sheet, stretch_scene.elastic)
     assert (s.mesh.edge_length_mm, s.mesh.edge_length_outline_mm) == (2.0, 0.5)
-    assert (s.elastic.edge_length_mm, s.elastic.edge_length_outline_mm) == (3.0, 1.5)
+    assert (elastic.edge_length_mm, elastic.edge_length_outline_mm) == (3.0, 1.5)
     assert s.mesh.grading_distance_mm == stretch_scene.mesh.grading_distance_mm
     assert (s.mesh.order, s.mesh.elements_per_layer) == (stretch_scene.mesh.order, stretch_scene.mesh.elements_per_layer)
-    assert s.elastic.elements_through_thickness == stretch_scene.elastic.elements_through_thickness
-    assert s.poses == stretch_scene.poses and s.layout == stretch_scene.layout
+    assert elastic.elements_through_thickness == stretch_scene.elastic.elements_through_thickness
+    assert s.layout == stretch_scene.layout and s.layers == stretch_scene.layers
 
 
 def test_relative_difference_is_the_largest_entry_against_the_finer_table():
@@ -49,10 +55,10 @@ def test_the_estimate_tracks_the_true_error_under_refinement(stretch_scene):
     error (against the Richardson extrapolation of the three finest levels) is 1–2× the
     estimate, as docs/hdf5.md states. Measured: estimates 14.1 %, 5.4 %, 1.8 %; observed
     order 1.5–1.6; true/estimate 1.67, 1.53."""
-    levels, scene = [], stretch_scene
+    levels, sheet, elastic = [], stretch_scene.sheet, stretch_scene.elastic
     for _ in range(4):
-        levels.append(simulate(scene).capacitance_pF)
-        scene = finer(scene)
+        levels.append(simulate(stretch_scene, sheet=sheet, elastic=elastic).capacitance_pF)
+        sheet, elastic = finer(sheet, elastic)
     estimates = [relative_difference(a, b) for a, b in zip(levels, levels[1:])]
     assert estimates[0] / estimates[1] > 2 and estimates[1] / estimates[2] > 2  # p > 1
     c1, c2, c3 = levels[1:]
@@ -66,8 +72,8 @@ def test_the_estimate_tracks_the_true_error_under_refinement(stretch_scene):
 
 def test_estimate_error_reports_the_finer_simulation(stretch_scene):
     coarse = simulate(stretch_scene).capacitance_pF
-    check = estimate_error(stretch_scene, stretch_scene.layout, coarse)
-    np.testing.assert_allclose(check.capacitance_pF, simulate(finer(stretch_scene)).capacitance_pF, rtol=1e-12)
+    check = estimate_error(stretch_scene, stretch_scene.sheet, coarse)
+    np.testing.assert_allclose(check.capacitance_pF, simulate_finer(stretch_scene).capacitance_pF, rtol=1e-12)
     assert check.error == pytest.approx(relative_difference(coarse, check.capacitance_pF))
     assert 0.01 < check.error < 0.3  # the coarse level's 14 % above
     assert check.wall_s > 0 and math.isfinite(check.metric_pF)
@@ -80,7 +86,8 @@ def test_only_large_checks_keep_their_factors_on_disk(name, disk):
     1 GB per worker of docs/performance.md §9) and in core where it does not (make run's scene)."""
     from mscap.service.accuracy import out_of_core
 
-    assert out_of_core(finer(load_scene(f"jobs/{name}.toml"))) is disk
+    scene = load_scene(f"jobs/{name}.toml")
+    assert out_of_core(*finer(scene.sheet, scene.elastic), scene.poses) is disk
 
 
 def test_a_check_started_from_the_runs_equilibria_finds_the_same_equilibria_sooner(write_scene):
@@ -102,12 +109,12 @@ def test_a_check_started_from_the_runs_equilibria_finds_the_same_equilibria_soon
     run = design.evaluate(design.deformer.zeros())
     warm = Equilibria.of(run)
     assert warm is not None and len(warm.displacements) == 2
-    cold = simulate(finer(scene), keep_fields=False)
-    hot = simulate(finer(scene), keep_fields=False, starts=warm.on)
+    cold = simulate_finer(scene, keep_fields=False)
+    hot = simulate_finer(scene, keep_fields=False, starts=warm.on)
     np.testing.assert_allclose(hot.capacitance_pF, cold.capacitance_pF, rtol=1e-9)
     iterations = [sum(p.state.newton_iterations for p in sim.poses) for sim in (hot, cold)]
     assert iterations[0] < 0.7 * iterations[1], iterations
-    check = estimate_error(scene, scene.layout, run.capacitance_pF, warm)
+    check = estimate_error(scene, scene.sheet, run.capacitance_pF, warm)
     np.testing.assert_allclose(check.capacitance_pF, cold.capacitance_pF, rtol=1e-9)
     run.release()
     design.close()

@@ -136,7 +136,8 @@ def test_the_best_run_of_each_k_stores_its_finer_mesh_check(three_ranks, scene_f
         assert all(r.checked or r.metric < best.metric for r in mine)
     record = max((r for r in runs if r.k == 2), key=lambda r: r.metric)
     layout = Layout(tuple(record.final_outlines))
-    fine = simulate(replace(finer(scene), layout=layout)).capacitance_pF
+    sheet, elastic = finer(replace(scene.sheet, layout=layout), scene.elastic)
+    fine = simulate(scene, sheet=sheet, elastic=elastic).capacitance_pF
     np.testing.assert_allclose(record.finer_capacitance_pF, fine, rtol=1e-9)
     assert record.error_estimate == pytest.approx(relative_difference(record.final_capacitance_pF, fine), rel=1e-9)
     assert record.error_estimate_wall_s > 0 and record.finer_metric_pF > 0
@@ -301,7 +302,9 @@ def test_a_stopping_job_keeps_a_finished_run_without_its_check(scene_file):
 
     def stopping(question):
         raise farm.Abandoned
-    assert multistart._with_check(load_scene(scene_file), record, None, None, None, stopping) is record
+
+    scene = load_scene(scene_file)
+    assert multistart._with_check(scene, scene.sheet, record, None, None, stopping) is record
 
 
 def test_a_start_that_fails_midway_keeps_its_history(scene_file, tmp_path, monkeypatch):
@@ -347,7 +350,7 @@ def test_a_failing_start_is_recorded_and_the_others_complete(scene_file, tmp_pat
     real = design.build_design
 
     def build(scene, **kwargs):
-        if scene.layout.k == 3:
+        if kwargs["sheet"].layout.k == 3:  # the start's layout
             raise MeshError("gmsh failed to mesh the sheet (forced by the test)")
         return real(scene, **kwargs)
     monkeypatch.setattr(design, "build_design", build)
