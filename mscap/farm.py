@@ -6,10 +6,15 @@ scheduling: Iprobe plus 10 ms sleeps, so an idle master costs no core) and passe
 result to a callback; a worker says "ready", then loops: receive a task, send back its
 result, until told to stop. While on a task a worker may *ask* the master a question
 (a pruning checkpoint) and wait for its answer. Tasks, questions, answers and results are
-pickled Python objects. SIGTERM (what
-SLURM sends at the time limit), SIGUSR1 (passed on by ``mpirun``) and Ctrl-C set
-:class:`Stop`, which makes the master hand out nothing more; workers ignore both signals.
+pickled Python objects.
 
+SIGTERM (what SLURM sends at the time limit), SIGUSR1 (passed on by ``mpirun``) and Ctrl-C
+set :class:`Stop`, which makes the master hand out nothing more. A worker that gets SIGTERM
+or SIGUSR1 does not die of it: it tells the master ("halt"), which stops the job the same
+way, so a signal to any rank is a clean stop of the whole job. The master says so at once,
+in one line (``stopping (SIGTERM to rank 0): ...``), and writes the reason to
+``$MSCAP_STOP_FILE`` when set (the job scripts: a launcher that ends the job with a non-zero
+status after the signal, as ``mpirun`` does on SIGTERM, still reports mscap's clean stop).
 A stop is graceful first: the master answers a worker's next question with "abandon"
 (the worker drops its task, which is not recorded and runs again on resume), records the
 results that still arrive, and lets every worker go; all ranks then end normally, so
@@ -27,21 +32,27 @@ ends the whole job (:func:`abort_at_exit`), never leaves the others spinning.
 from __future__ import annotations
 
 import atexit
+import os
 import signal
 import time
 from typing import Any, Callable, Iterable, TypeVar
 
 Result = TypeVar("Result")
 
-__all__ = ["TAGS", "STOP_SIGNALS", "STOP_GRACE_S", "Stop", "Abandoned", "ignore_stop_signals", "farm", "serve",
-           "ask_master", "abort_at_exit", "release", "quiet_barrier", "run"]
+__all__ = ["TAGS", "STOP_SIGNALS", "STOP_GRACE_S", "STOP_FILE_ENV", "Stop", "Abandoned", "pass_stop_on", "farm",
+           "serve", "ask_master", "abort_at_exit", "release", "quiet_barrier", "run"]
 
 #: Message tags between master and workers, in one place.
-TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4, "ask": 5, "answer": 6, "abandon": 7}
+TAGS = {"ready": 1, "work": 2, "result": 3, "stop": 4, "ask": 5, "answer": 6, "abandon": 7, "halt": 8}
 
 #: After a stop, how long the master waits for busy workers to reach a question (and drop
 #: their task) or to finish it, before the job is aborted with them.
 STOP_GRACE_S = 60.0
+
+#: The environment variable naming a file the master writes when it begins a clean stop
+#: (``stopping <reason>``) and when it has stopped (``stopped``); an error after the stop
+#: began writes ``error``. The job scripts read it (slurm/common.sh).
+STOP_FILE_ENV = "MSCAP_STOP_FILE"
 
 
 class Abandoned(BaseException):
@@ -57,26 +68,70 @@ STOP_SIGNALS = (signal.SIGTERM, signal.SIGUSR1)
 
 
 class Stop:
-    """Turns :data:`STOP_SIGNALS` into a flag the master polls."""
+    """Turns :data:`STOP_SIGNALS` into a flag the master polls; :attr:`reason` says what
+    asked (``SIGTERM to rank 0``, ``SIGUSR1 to rank 2``, ``Ctrl-C``), and :meth:`notice`
+    says it once (``say``), as soon as the master sees it."""
 
-    def __init__(self):
+    def __init__(self, say: Callable[[str], None] | None = None):
         self.requested = False
+        self.reason = ""
+        self.noticed = False
+        self._say = say
         self._previous = {s: signal.signal(s, self._handle) for s in STOP_SIGNALS}
 
     def _handle(self, signum, frame):
-        self.requested = True
+        self.request(f"{signal.Signals(signum).name} to rank 0")
+
+    def request(self, reason: str) -> None:
+        if not self.requested:
+            self.requested, self.reason = True, reason
+
+    def notice(self) -> None:
+        """Say, once, that the job is stopping and why; write :data:`STOP_FILE_ENV`. What
+        has been recorded is on disk by then (both services store each result as it comes):
+        a launcher that kills the ranks right after (``mpirun`` on SIGTERM, 1 s later)
+        loses only the busy workers' tasks, which run again on resume."""
+        if self.noticed or not self.requested:
+            return
+        self.noticed = True
+        if self._say is not None:
+            self._say(f"stopping ({self.reason}): everything finished is stored; no new task is handed "
+                      f"out and busy workers stop at their next checkpoint (at most {STOP_GRACE_S:.0f} s)")
+        write_stop_file(f"stopping {self.reason}")
 
     def restore(self):
         for s, previous in self._previous.items():
             signal.signal(s, previous)
 
 
-def ignore_stop_signals() -> None:
-    """Worker side: leave :data:`STOP_SIGNALS` to the master. SLURM signals every task
-    of a step and ``mpirun`` every rank; a worker that died of it would take its finished
-    but unsent result with it, while the master stops cleanly and aborts busy workers."""
+def write_stop_file(text: str) -> None:
+    """``text`` into the file :data:`STOP_FILE_ENV` names, if set (a failure to write it is
+    the launcher's loss, not the job's: ignored)."""
+    path = os.environ.get(STOP_FILE_ENV)
+    if path:
+        try:
+            with open(path, "w", encoding="utf-8") as f:
+                f.write(text + "\n")
+        except OSError:
+            pass
+
+
+def pass_stop_on(comm) -> None:
+    """Worker side: a :data:`STOP_SIGNALS` signal to this rank asks the master to stop the
+    job (one "halt" message, sent once) instead of ending the rank. SLURM signals every task
+    of a step and ``mpirun`` every rank; a worker that died of it would take its finished but
+    unsent result with it, and a signal to one worker alone (``kill -TERM``) is a stop of the
+    job like one to the master. The handler runs between Python bytecodes, never inside an
+    MPI call, and the message is a few bytes (sent eagerly)."""
+    told = []
+
+    def handle(signum, frame):
+        if not told:
+            told.append(signum)
+            comm.send(signal.Signals(signum).name, dest=0, tag=TAGS["halt"])
+
     for s in STOP_SIGNALS:
-        signal.signal(s, signal.SIG_IGN)
+        signal.signal(s, handle)
 
 
 def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop,
@@ -96,6 +151,7 @@ def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop,
     while waiting:
         while not comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
             if stop.requested:
+                stop.notice()  # once, at once
                 stopping = stopping or time.monotonic()
                 if time.monotonic() - stopping > grace_s:
                     return len(busy)
@@ -104,6 +160,12 @@ def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop,
             time.sleep(0.01)
         message = comm.recv(source=status.Get_source(), tag=status.Get_tag(), status=status)
         worker = status.Get_source()
+        if status.Get_tag() == TAGS["halt"]:  # a signal to a worker: the job stops
+            stop.request(f"{message} to rank {worker}")
+        if stop.requested:
+            stop.notice()  # once, at once, even while messages keep coming
+        if status.Get_tag() == TAGS["halt"]:
+            continue
         if status.Get_tag() == TAGS["ask"]:  # a busy worker waits for the answer
             if stop.requested:
                 comm.send(None, dest=worker, tag=TAGS["abandon"])
@@ -215,12 +277,13 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
     each question and ``tick(busy)`` while it waits. If the master fails before
     ``execute`` the workers are released; if it fails later, or a worker fails, the
     error is printed once by its rank and the whole job is aborted
-    (:func:`abort_at_exit`): no rank is left waiting. SIGTERM, SIGUSR1 or Ctrl-C set ``stop``
-    (nothing more is handed out, busy workers drop their task at their next question, the
-    master closes its files as usual), then rank 0 says ``stopped_message``; workers still
-    busy after :data:`STOP_GRACE_S` are aborted with the job."""
+    (:func:`abort_at_exit`): no rank is left waiting. SIGTERM or SIGUSR1 to any rank, or
+    Ctrl-C, set ``stop`` (rank 0 says so at once, :meth:`Stop.notice`; nothing more is handed
+    out, busy workers drop their task at their next question, the master closes its files as
+    usual), then rank 0 says ``stopped_message``; workers still busy after
+    :data:`STOP_GRACE_S` are aborted with the job."""
     if comm.Get_rank() != 0:
-        ignore_stop_signals()
+        pass_stop_on(comm)
         try:
             serve(comm, make_work(ask_master(comm)))
         except BaseException as exc:
@@ -228,7 +291,7 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
             raise
         quiet_barrier(comm)
         return None
-    stop, farming, left = Stop(), False, 0
+    stop, farming, left = Stop(say), False, 0
 
     def execute(tasks: Iterable, record: Callable[[Any], None], answer: Callable[[Any], Any] | None = None,
                 tick: Callable[[dict], None] | None = None) -> None:
@@ -249,17 +312,23 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
                 work = make_work(ask)
                 for task in tasks:
                     if stop.requested:
+                        stop.notice()
                         break
                     busy[0] = (task, time.monotonic())
                     record(work(task))
             else:
                 left = farm(comm, tasks, record, stop, answer, tick)
-        except (KeyboardInterrupt, Abandoned):
-            stop.requested = True
+        except KeyboardInterrupt:
+            stop.request("Ctrl-C")
+            stop.notice()
+        except Abandoned:
+            stop.notice()
 
     try:
         result = master(execute, stop)
     except BaseException as exc:
+        if stop.noticed:
+            write_stop_file("error")  # the stop began, but the job did not end cleanly
         if not farming:
             release(comm)  # let the workers go before the error reaches main()
         else:
@@ -268,7 +337,9 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
     finally:
         stop.restore()
     if stop.requested:
+        stop.notice()
         say(stopped_message)
+        write_stop_file("stopped")
         if left:
             comm.Abort(0)
     quiet_barrier(comm)

@@ -3,6 +3,7 @@
 #
 #   mscap_environment NAME     activate the venv, one thread per rank, OpenMPI as root
 #   mscap_launcher NAME        sets the array `launcher`: srun or mpirun (LAUNCHER, below)
+#   mscap_check_room NAME [DIR...]  refuses (status 2) a file-size limit or a disk too small for MPI
 #   mscap_launch NAME ARGS...  runs `launcher mscap ARGS...`, passes a stop on, returns its status
 #
 # LAUNCHER (environment):
@@ -17,7 +18,12 @@
 # (slurm/README.md): a TERM to srun makes srun SIGKILL every task, so the script signals the
 # job's steps instead (`scancel --signal=TERM JOB`, which leaves the batch script alone); a TERM
 # to mpirun makes mpirun kill the ranks, while SIGUSR1 is passed on to every rank untouched,
-# so mpirun gets SIGUSR1. mscap's workers ignore both signals (mscap/farm.py).
+# so mpirun gets SIGUSR1. A signal to any rank is a stop of the whole job: a worker that gets
+# TERM or USR1 tells the master (mscap/farm.py). When the launcher itself is signalled
+# (`scancel JOB` signals every process of the job, mpirun and srun included), it may end the
+# job with a status of its own after mscap's clean stop (mpirun exits 1 after a TERM, whatever
+# the ranks do): mscap's master writes the stop into $MSCAP_STOP_FILE, and the launch then
+# reports the stop's status, 0 (slurm/README.md, "Exit statuses").
 
 mscap_environment() {
     local name="$1"
@@ -115,10 +121,38 @@ mscap_stop() {
     fi
 }
 
+# MPI's start-up writes its shared-memory segments into the session directory (TMPDIR, else
+# /tmp): under a file-size limit of 1 MB, or on a full disk, OpenMPI 4.1 dies in MPI_Init with
+# a dozen PMIx lines before mscap can say anything (measured: `ulimit -f 1024` fails, 4096 runs).
+# Refuse such a start in one line instead (16 MB: four times what the start-up needed).
+MSCAP_MIN_FILE_KB=16384
+
+mscap_check_room() {
+    local name="$1" limit dir free
+    limit="$(ulimit -f)"
+    if [[ "$limit" != unlimited ]] && (( limit < MSCAP_MIN_FILE_KB )); then
+        echo "$name: the file size limit (ulimit -f) is $limit KB: MPI's start-up needs" \
+             "at least $MSCAP_MIN_FILE_KB KB (raise it: ulimit -f unlimited)" >&2
+        exit 2
+    fi
+    for dir in "${TMPDIR:-/tmp}" "$@"; do
+        [[ -d "$dir" ]] || continue
+        free="$(df -Pk "$dir" 2>/dev/null | awk 'NR == 2 {print $4}')"
+        if [[ -n "$free" ]] && (( free < MSCAP_MIN_FILE_KB )); then
+            echo "$name: $dir has $free KB free: MPI's start-up needs at least" \
+                 "$MSCAP_MIN_FILE_KB KB there" >&2
+            exit 2
+        fi
+    done
+}
+
 mscap_launch() {
     local name="$1"
     shift
     echo "$name: ${launcher[*]} mscap $* (job ${SLURM_JOB_ID:-none}, $(date -u '+%F %T') UTC)" >&2
+    local stopfile
+    stopfile="$(mktemp "${TMPDIR:-/tmp}/mscap-stop.XXXXXX")"
+    export MSCAP_STOP_FILE="$stopfile"
     # The launcher runs in the background so the trap runs while it does (a signal that comes
     # before the launcher's pid is known is passed on just after).
     child=""
@@ -134,4 +168,11 @@ mscap_launch() {
         wait "$child" || status=$?
     done
     trap - TERM INT
+    if (( status != 0 )) && grep -q '^stop' "$stopfile" 2>/dev/null; then
+        echo "$name: ${launcher[0]} exited $status after mscap's clean stop ($(head -n1 "$stopfile")):" \
+             "the finished work is stored; status 0" >&2
+        status=0
+    fi
+    rm -f "$stopfile"
+    unset MSCAP_STOP_FILE
 }

@@ -17,7 +17,8 @@
 # cluster user relies on:
 #   1. a single job (slurm/mscap_run.sbatch) completes and stores its runs;
 #   2. a job array with its dependent merge (slurm/submit_array.sh) merges every part;
-#   3. `scancel` stops a job, and resubmitting the same command completes it (resume);
+#   3. `scancel` stops a job cleanly under each launcher ("stopping" logged, exit status 0),
+#      and resubmitting the same command completes it (resume);
 #   4. a job that reaches its --signal=B:TERM warning before the time limit stops cleanly:
 #      finished runs stored, "stopped" logged, state COMPLETED (exit 0) or TIMEOUT; once with
 #      mpirun inside the allocation, once with srun --mpi=pmix where srun has PMIx.
@@ -221,32 +222,44 @@ wait_job "$merge" 300
 [[ "$(stored "$res/array/all.h5")" == 2 ]] || fail "the merged file holds $(stored "$res/array/all.h5") runs, not 2"
 say "2. array + merge: parts $(cd "$res/array" && ls results_*.h5 | tr '\n' ' ')merged by job $merge into all.h5 (2 runs)"
 
-# 3. scancel after the first stored run, then the same submission resumes.
-submit_resume() {
-    sbatch --parsable --ntasks=3 -O -o "$res/resume-%j.out" \
-        --export=ALL,SCENE="$SCENE",OUT="$res/resume.h5",K_MIN=3,K_MAX=3,SEEDS=0:4,MSCAP_ARGS="$short --starts-per-k 4" \
+# 3. scancel after the first stored run, under each launcher: the job ends with mscap's
+#    clean stop (the "stopping" line, exit status 0); then the same submission resumes.
+submit_resume() {   # submit_resume LAUNCHER [SRUN_ARGS]
+    sbatch --parsable --ntasks=3 -O -o "$res/resume-$1-%j.out" \
+        --export=ALL,SCENE="$SCENE",OUT="$res/resume-$1.h5",K_MIN=3,K_MAX=3,SEEDS=0:4,LAUNCHER="$1",SRUN_ARGS="${2:-}",MSCAP_ARGS="$short --starts-per-k 4" \
         slurm/mscap_run.sbatch
 }
-first=$(submit_resume)
-t0=$SECONDS
-until grep -q '^\[1/' "$res/resume-$first.out" 2>/dev/null; do
-    (( SECONDS - t0 < 300 )) || fail "job $first stored no run in 300 s"
-    sleep 0.5
+cancels=("mpirun")
+srun --mpi=list 2>&1 | grep -q pmix && cancels+=("srun --mpi=pmix")
+for entry in "${cancels[@]}"; do
+    read -r how how_args <<< "$entry"
+    first=$(submit_resume "$how" "${how_args:-}")
+    log="$res/resume-$how-$first.out"
+    t0=$SECONDS
+    until grep -q '^\[1/' "$log" 2>/dev/null; do
+        (( SECONDS - t0 < 300 )) || fail "job $first ($how) stored no run in 300 s"
+        sleep 0.5
+    done
+    scancel "$first"
+    wait_job "$first" 120
+    before=$(stored "$res/resume-$how.h5")
+    (( before >= 1 && before < 4 )) || fail "the cancelled job $first ($how) left $before runs (expected 1 to 3)"
+    grep -q '^stopping (SIG' "$log" || fail "the cancelled job $first ($how) logged no 'stopping' line: $(tail -n5 "$log")"
+    grep -q '^mscap_run: exit status 0,' "$log" \
+        || fail "the cancelled job $first ($how) did not end with status 0: $(tail -n5 "$log")"
+    say "3. scancel ($how): job $first $(state "$first") with $before runs stored; its log:"
+    grep -E '^mscap_run: (stop|exit|mpirun|srun)|^stopp|CANCELLED|Killed|Terminated' "$log" | sed 's/^/       /'
 done
-scancel "$first"
-wait_job "$first" 120
-before=$(stored "$res/resume.h5")
-(( before >= 1 && before < 4 )) || fail "the cancelled job $first left $before runs (expected 1 to 3)"
-second=$(submit_resume)
+second=$(submit_resume "$how" "${how_args:-}")
 wait_job "$second" 300
 [[ "$(state "$second")" == COMPLETED ]] || fail "resumed job $second: $(state "$second")"
 # The rerun does the missing starts, plus the finer-mesh check of a k's best that the
 # cancel reached between its run and its check (stored unchecked, not lost).
-todo=$(sed -n "s/.*$before runs already stored, \([0-9]*\) to do.*/\1/p" "$res/resume-$second.out")
+todo=$(sed -n "s/.*$before runs already stored, \([0-9]*\) to do.*/\1/p" "$res/resume-$how-$second.out")
 [[ -n "$todo" ]] && (( todo >= 4 - before )) \
-    || fail "job $second did not resume: $(grep 'to do' "$res/resume-$second.out")"
-[[ "$(stored "$res/resume.h5")" == 4 ]] || fail "after the resume $(stored "$res/resume.h5") runs, not 4"
-say "3. scancel + resubmit: job $first $(state "$first") with $before runs stored; job $second resumed the other $(( 4 - before ))"
+    || fail "job $second did not resume: $(grep 'to do' "$res/resume-$how-$second.out")"
+[[ "$(stored "$res/resume-$how.h5")" == 4 ]] || fail "after the resume $(stored "$res/resume-$how.h5") runs, not 4"
+say "3. resubmitted ($how): job $second resumed the other $(( 4 - before ))"
 
 # 4, continued.
 for entry in "${timelimit[@]}"; do
@@ -261,6 +274,6 @@ for entry in "${timelimit[@]}"; do
     n=$(stored "$res/timelimit-$how.h5")
     (( n >= 1 && n < total )) || fail "time-limited job $tl ($how) stored $n runs (expected 1 to $(( total - 1 )))"
     say "4. time limit ($how): job $tl $tl_state (ExitCode $(exit_code "$tl")), $n of $total runs stored; its log:"
-    grep -E '^mscap_run: (stop|exit)|stopped: |CANCELLED|Killed|Terminated' "$log" | sed 's/^/       /'
+    grep -E '^mscap_run: (stop|exit|mpirun|srun)|^stopp|CANCELLED|Killed|Terminated' "$log" | sed 's/^/       /'
 done
 say "passed"

@@ -52,16 +52,14 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from mpi4py import MPI
-
     from mscap.calibration.report import default_paths, text_report, write_outputs
     from mscap.calibration.service import CalibrationError, Candidate, evaluate, settings, simulate_family
-    from mscap.cli.common import load_scene_for, progress_printer
+    from mscap.cli.common import load_scene_for, progress_printer, start_mpi
     from mscap.outputs import output_directory
     from mscap.service.designs import design_layouts
     from mscap.viz.calibration import error_figure
 
-    comm = MPI.COMM_WORLD
+    comm = start_mpi().COMM_WORLD
     rank = comm.Get_rank()
     scene = load_scene_for(args)
     cal = settings(scene)

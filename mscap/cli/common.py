@@ -11,7 +11,13 @@ import sys
 from typing import Callable
 
 __all__ = ["DefaultsHelpFormatter", "load_scene_for", "add_memory_option", "add_noise_options", "add_verbose_option",
-           "progress_printer"]
+           "progress_printer", "start_mpi", "MIN_FILE_SIZE_LIMIT_BYTES"]
+
+#: The smallest file-size limit (``ulimit -f``) under which MPI is started: OpenMPI 4.1's
+#: start-up writes its PMIx shared-memory segments as files and, under a limit of 1 MB,
+#: dies in ``MPI_Init`` with a dozen PMIx lines (4 MB ran; measured with ``mpirun -n 2``).
+#: The job scripts refuse the same before the launcher starts (slurm/common.sh).
+MIN_FILE_SIZE_LIMIT_BYTES = 16 * 2**20
 
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
@@ -90,3 +96,30 @@ def load_scene_for(args):
 def progress_printer(quiet: bool) -> Callable[[str], None] | None:
     """Progress lines to stderr, or ``None`` when ``quiet``."""
     return None if quiet else (lambda message: print(message, file=sys.stderr, flush=True))
+
+
+def start_mpi():
+    """``mpi4py.MPI`` (``MPI_Init`` on import), unless the process may not write files of
+    :data:`MIN_FILE_SIZE_LIMIT_BYTES` or the session directory (``TMPDIR``, else ``/tmp``)
+    has less room: then a :class:`~mscap.errors.MscapError` naming the limit, before MPI's
+    start-up fails without a word of why."""
+    import resource
+
+    from mscap.errors import MscapError
+
+    limit, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    if limit != resource.RLIM_INFINITY and limit < MIN_FILE_SIZE_LIMIT_BYTES:
+        raise MscapError(f"the file size limit (ulimit -f) is {limit // 1024} KB: MPI's start-up needs at least "
+                         f"{MIN_FILE_SIZE_LIMIT_BYTES // 1024} KB (raise it: ulimit -f unlimited)")
+    session = os.environ.get("TMPDIR") or "/tmp"  # where OpenMPI puts its session directory
+    try:
+        room = os.statvfs(session)
+    except OSError:
+        room = None
+    if room is not None and room.f_bavail * room.f_frsize < MIN_FILE_SIZE_LIMIT_BYTES:
+        raise MscapError(f"{session} has {room.f_bavail * room.f_frsize // 1024} KB free: MPI's start-up needs at "
+                         f"least {MIN_FILE_SIZE_LIMIT_BYTES // 1024} KB there (its session directory; free some "
+                         f"or point TMPDIR elsewhere)")
+    from mpi4py import MPI
+
+    return MPI

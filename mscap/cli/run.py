@@ -50,14 +50,12 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from mpi4py import MPI
-
+    from mscap.cli.common import load_scene_for, progress_printer, start_mpi
     from mscap.service.multistart import run_multistart
     from mscap.service.selection import start_index
-    from mscap.cli.common import load_scene_for, progress_printer
     from mscap.scene.loader import with_overrides
 
-    comm = MPI.COMM_WORLD
+    comm = start_mpi().COMM_WORLD
     scene = with_overrides(load_scene_for(args), args.starts_per_k, args.prune, args.keep_repeated_starts,
                            args.check_all_runs, args.calibrate_best)
 

@@ -143,7 +143,7 @@ def _threshold(field, distance: int, near: float, far: float, start: float, stop
 
 #: Signals whose handling gmsh.initialize/finalize reset to the default (measured: a worker's
 #: ignored SIGTERM became deadly after its first mesh, so srun's TERM to a job step killed the
-#: workers that mscap/farm.py tells to ignore it).
+#: workers; mscap/farm.py's workers now pass it on to the master, a handler kept here too).
 _KEPT_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGUSR1") if hasattr(signal, name))
 
 

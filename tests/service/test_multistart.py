@@ -474,27 +474,53 @@ def test_a_killed_job_leaves_a_readable_file_and_the_rerun_completes_it(scene_fi
     assert all(max((r for r in runs if r.k == k), key=lambda r: r.metric).checked for k in (2, 3))
 
 
+def rank_pid(session: int, rank: int) -> int:
+    """The pid of MPI rank ``rank`` among the processes of ``session`` (mpirun's)."""
+    for pid in session_members(session):
+        try:
+            environ = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if f"OMPI_COMM_WORLD_RANK={rank}".encode() in environ:
+            return pid
+    raise AssertionError(f"no rank {rank} in session {session}")
+
+
 @needs_mpirun
-def test_usr1_to_mpirun_stops_the_master_cleanly(scene_file, tmp_path):
-    """The SLURM scripts stop an mpirun-launched job with SIGUSR1 (mpirun passes it on to every
-    rank; a TERM would make mpirun kill them): the master stores what finished, says
-    "stopped", aborts the busy workers and the job exits 0; workers ignore the signal."""
+@pytest.mark.parametrize("target, signal_name, status", [
+    ("mpirun", "SIGUSR1", 0),  # the SLURM scripts' route: mpirun passes it on to every rank
+    ("rank 1", "SIGTERM", 0),  # a signal to one worker alone stops the job like one to the master
+    ("mpirun", "SIGTERM", 1),  # mpirun kills the ranks 1 s after it passes a TERM on, and exits 1
+])
+def test_a_signal_to_any_rank_or_to_mpirun_stops_the_job_cleanly(scene_file, tmp_path, target, signal_name,
+                                                                 status):
+    """A stop signal to mpirun or to any rank: the master says "stopping (...)" at once and
+    writes it to $MSCAP_STOP_FILE; what finished is stored. The job then ends on its own
+    with exit 0 and "stopped" (the master aborts busy workers), except that mpirun answers a
+    TERM by killing the ranks and exiting 1, whatever they do (OpenMPI 4.1; the job scripts
+    report the stop file's clean stop as 0, slurm/README.md "Exit statuses")."""
     import signal
     import time
 
-    out = tmp_path / "stopped.h5"
+    out, stop_file = tmp_path / "stopped.h5", tmp_path / "stop"
     command = ["mpirun", "-n", "3", "--oversubscribe", MSCAP, "run", str(scene_file), "-o", str(out),
                "--max-iterations", "2"]
-    job = subprocess.Popen(command, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                           start_new_session=True)
+    job = subprocess.Popen(command, env={**ENV, "MSCAP_STOP_FILE": str(stop_file)}, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True, start_new_session=True)
     for line in job.stderr:
         if line.startswith("[1/"):
             break
-    job.send_signal(signal.SIGUSR1)
+    os.kill(job.pid if target == "mpirun" else rank_pid(job.pid, 1), getattr(signal, signal_name))
     stdout, stderr = job.communicate(timeout=60)
-    assert job.returncode == 0, stderr
-    assert "exited on signal" not in stderr               # no rank died of the signal
-    assert "stopped: the finished runs are stored" in stdout + stderr
+    assert job.returncode == status, stderr
+    reason = f"{signal_name} to rank {0 if target == 'mpirun' else 1}"
+    assert f"stopping ({reason}): everything finished is stored" in stderr
+    if status == 0:
+        assert "exited on signal" not in stderr               # no rank died of the signal
+        assert "stopped: the finished runs are stored" in stderr
+        assert stop_file.read_text() == "stopped\n"
+    else:  # killed during the stop or, when the busy workers reached a checkpoint within 1 s, after it
+        assert stop_file.read_text() in (f"stopping {reason}\n", "stopped\n")
     deadline = time.monotonic() + 30
     while session_members(job.pid) and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -502,6 +528,25 @@ def test_usr1_to_mpirun_stops_the_master_cleanly(scene_file, tmp_path):
     store = read_store(out)
     assert 1 <= len(finished_ids(store)) < 4
     store.close()
+
+
+def test_no_mpi_start_under_a_file_size_limit_it_cannot_live_with(scene_file, tmp_path):
+    """Under ``ulimit -f 1024`` OpenMPI's start-up dies in MPI_Init with a dozen PMIx lines;
+    mscap says why in one line before it starts MPI, and exits 2."""
+    import resource
+
+    from mscap.cli.common import MIN_FILE_SIZE_LIMIT_BYTES
+
+    def small_limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (2**20, 2**20))
+
+    done = subprocess.run([MSCAP, "run", str(scene_file), "-o", str(tmp_path / "r.h5")], env=ENV,
+                          capture_output=True, text=True, preexec_fn=small_limit, timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.strip() == (f"mscap: error: the file size limit (ulimit -f) is 1024 KB: MPI's start-up "
+                                   f"needs at least {MIN_FILE_SIZE_LIMIT_BYTES // 1024} KB (raise it: ulimit -f "
+                                   f"unlimited)")
+    assert not (tmp_path / "r.h5").exists()
 
 
 @needs_mpirun

@@ -311,6 +311,51 @@ def test_stop_reaches_mscap_without_killing_it(sandbox, script, launcher, route,
     assert scancels == ([route] if route else [])
 
 
+@pytest.mark.parametrize("script", ["mscap_run.sbatch", "mscap_array.sbatch"])
+@pytest.mark.parametrize("written, launcher_status, status", [
+    ("stopping SIGTERM to rank 0", 1, 0),  # mpirun after a TERM: mscap stopped cleanly, killed after
+    ("stopped", 137, 0),                   # the ranks ended, the launcher reported a signal
+    ("error", 1, 1),                       # the stop began but the job failed: its status stands
+    ("", 1, 1),                            # no stop: a failure
+])
+def test_a_launchers_status_after_mscaps_clean_stop_is_the_stops(sandbox, script, written, launcher_status,
+                                                                  status):
+    """mscap's master writes a clean stop into $MSCAP_STOP_FILE; a launcher that exits non-zero
+    after it (mpirun answers a TERM so) does not make the job a failure. The file is removed."""
+    sandbox.add("mpirun", LOGGER + f'[ -n "$MSCAP_STOP_FILE" ] && printf "{written}\\n" > "$MSCAP_STOP_FILE"\n'
+                f"exit {launcher_status}\n")
+    proc = sandbox.run(script, check=False, SLURM_ARRAY_TASK_ID="2", LAUNCHER="mpirun", TMPDIR=str(sandbox.tmp))
+    assert proc.returncode == status, proc.stderr
+    assert (f"mpirun exited {launcher_status} after mscap's clean stop ({written})" in proc.stderr) == (status == 0)
+    assert not list(sandbox.tmp.glob("mscap-stop.*"))
+
+
+@pytest.mark.parametrize("script", ["mscap_run.sbatch", "mscap_array.sbatch"])
+def test_no_launch_under_a_file_size_limit_mpi_cannot_start_with(sandbox, script):
+    """``ulimit -f 1024``: OpenMPI's start-up would die in MPI_Init with a dozen PMIx lines;
+    the script refuses in one line, status 2, and launches nothing."""
+    import resource
+
+    def small_limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (2**20, 2**20))
+
+    proc = subprocess.run([BASH, str(SLURM / script)], cwd=sandbox.tmp, preexec_fn=small_limit,
+                          env={**sandbox.env, "SLURM_ARRAY_TASK_ID": "2"}, capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2
+    assert "the file size limit (ulimit -f) is 1024 KB: MPI's start-up needs at least 16384 KB" in proc.stderr
+    assert sandbox.launches == []
+
+
+def test_no_launch_on_a_nearly_full_session_directory(sandbox):
+    # df (a stand-in) reports 8 MB free where MPI's start-up would write its segments.
+    sandbox.add("df", "#!/bin/sh\necho 'Filesystem 1024-blocks Used Available Capacity Mounted on'\n"
+                      "echo \"tmpfs 16384 8192 8192 50% $2\"\n")
+    proc = sandbox.run("mscap_run.sbatch", check=False, TMPDIR=str(sandbox.tmp))
+    assert proc.returncode == 2
+    assert f"{sandbox.tmp} has 8192 KB free: MPI's start-up needs at least 16384 KB there" in proc.stderr
+    assert sandbox.launches == []
+
+
 # --- mscap_array.sbatch -----------------------------------------------------------------------
 
 @pytest.mark.parametrize("task", ["2", "3", "6"])
