@@ -173,6 +173,69 @@ def _work(scene: Scene, designs, poses_of):
 
 
 # ---------------------------------------------------------------- cache (master)
+#: At most this many designs in a cache (the multi-start calibrates a few per k; a file that
+#: holds more is not one mscap wrote, and checking it would take long).
+MAX_CACHED_DESIGNS = 10_000
+_TABLES = ("capacitance_pF", "done", "wall_s")
+
+
+def cache_problem(cache: h5py.File) -> str | None:
+    """What is wrong with an opened calibration cache, from its declarations (nothing but
+    each design's ``k + 1`` outline offsets is read), or ``None``: every design group
+    with its label, k, outlines and, per pose set, the three tables of the same length."""
+    from mscap.infile import dataset_problem
+    from mscap.scene.settings import MAX_CAPACITORS
+
+    designs = cache.get("designs")
+    if not isinstance(designs, h5py.Group):
+        return "no group /designs"
+    if len(designs) > MAX_CACHED_DESIGNS:
+        return f"/designs holds {len(designs)} members; at most {MAX_CACHED_DESIGNS}"
+    for key, g in designs.items():
+        where = f"/designs/{key[:40]!r}"
+        if not isinstance(g, h5py.Group):
+            return f"{where} is not a group"
+        k = g.attrs.get("k")
+        if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 1 <= k <= MAX_CAPACITORS:
+            return f"{where}: attribute 'k' is {str(k)[:40]!r}, not an integer in [1, {MAX_CAPACITORS}]"
+        label = g.attrs.get("label")
+        if not isinstance(label, (str, bytes)) or len(label) > 1000:
+            return f"{where}: attribute 'label' is not a text of at most 1000 characters"
+        problem = (dataset_problem(g.get("outline_points_mm"), "outline_points_mm", "f", 2)
+                   or dataset_problem(g.get("outline_offsets"), "outline_offsets", "iu", 1))
+        if problem:
+            return f"{where}: {problem}"
+        points, offsets = g["outline_points_mm"], g["outline_offsets"]
+        if points.shape[1] != 2 or offsets.shape != (k + 1,):
+            return f"{where}: outlines {points.shape} with offsets {offsets.shape} for k = {k}"
+        offsets = offsets[()]
+        if offsets[0] != 0 or offsets[-1] != len(points) or np.any(np.diff(offsets) < 3):
+            return f"{where}: outline offsets {offsets.tolist()[:8]} do not split {len(points)} points into {k} polygons"
+        sets = {name[:-len(f"_{table}")] for name in g for table in _TABLES if name.endswith(f"_{table}")}
+        for which in sorted(sets):
+            kinds = {"capacitance_pF": ("f", 2), "done": ("b", 1), "wall_s": ("f", 1)}
+            for table, (kind, ndim) in kinds.items():
+                problem = dataset_problem(g.get(f"{which}_{table}"), f"{which}_{table}", kind, ndim)
+                if problem:
+                    return f"{where}: {problem}"
+            n = len(g[f"{which}_done"])
+            if g[f"{which}_capacitance_pF"].shape != (n, k) or g[f"{which}_wall_s"].shape != (n,):
+                return (f"{where}: {which} tables {g[f'{which}_capacitance_pF'].shape}, {(n,)}, "
+                        f"{g[f'{which}_wall_s'].shape} do not agree with k = {k}")
+    return None
+
+
+def _text(attrs, name: str) -> str:
+    """A scalar attribute as text (at most 100 characters); ``""`` for anything else (an
+    array, a compound: a file mscap did not write)."""
+    value = attrs.get(name)
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", "replace")
+    if isinstance(value, (str, int, np.integer)) and not isinstance(value, (bool, np.bool_)):
+        return str(value)[:100]
+    return ""
+
+
 def _open_cache(path, scene: Scene) -> h5py.File:
     """The calibration cache at ``path``, locked for this process like a results file
     (:mod:`mscap.outfile`: never through a link, never truncated while another
@@ -187,11 +250,22 @@ def _open_cache(path, scene: Scene) -> h5py.File:
         lock.close()
         raise CalibrationError(f"{path}: cannot open the calibration cache ({exc})") from None
     if not lock.empty:
-        if f.attrs.get("format") != FORMAT:
+        try:
+            ours = _text(f.attrs, "format") == FORMAT
+            stale = (_text(f.attrs, "schema_version") != str(SCHEMA_VERSION)
+                     or _text(f.attrs, "physics_sha256") != physics or _text(f.attrs, "family_sha256") != fam)
+            problem = cache_problem(f) if ours and not stale else None
+        except (KeyError, OSError, RuntimeError, ValueError, TypeError) as exc:  # HDF5 could not read it
+            from mscap.infile import one_line
+
+            ours, stale, problem = True, False, one_line(exc)
+        if not ours:
             f.close()
             raise CalibrationError(f"{path} is not an mscap calibration cache; give another --cache")
-        stale = (int(f.attrs.get("schema_version", -1)) != SCHEMA_VERSION
-                 or f.attrs.get("physics_sha256") != physics or f.attrs.get("family_sha256") != fam)
+        if problem:
+            f.close()
+            raise CalibrationError(f"{path}: a damaged calibration cache ({problem}); delete it (the "
+                                   f"calibration makes it again) or give another --cache")
         if not stale:
             return f
         log.warning("%s: cache of another scene or pose family; starting it over", path)

@@ -99,14 +99,16 @@ def progress_printer(quiet: bool) -> Callable[[str], None] | None:
 
 
 def start_mpi():
-    """``mpi4py.MPI`` (``MPI_Init`` on import), unless the process may not write files of
-    :data:`MIN_FILE_SIZE_LIMIT_BYTES` or the session directory (``TMPDIR``, else ``/tmp``)
-    has less room: then a :class:`~mscap.errors.MscapError` naming the limit, before MPI's
-    start-up fails without a word of why."""
+    """``mpi4py.MPI``, started here (``MPI_Init`` on import) unless it runs already. Before
+    it starts: a :class:`~mscap.errors.MscapError` naming the limit when the process may not
+    write files of :data:`MIN_FILE_SIZE_LIMIT_BYTES` or the session directory (``TMPDIR``,
+    else ``/tmp``) has less room, instead of MPI's start-up failing without a word of why."""
     import resource
 
     from mscap.errors import MscapError
 
+    if "mpi4py.MPI" in sys.modules:  # started already (a test runner, a notebook): nothing to protect
+        return sys.modules["mpi4py.MPI"]
     limit, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
     if limit != resource.RLIM_INFINITY and limit < MIN_FILE_SIZE_LIMIT_BYTES:
         raise MscapError(f"the file size limit (ulimit -f) is {limit // 1024} KB: MPI's start-up needs at least "

@@ -12,17 +12,13 @@ import h5py
 import numpy as np
 
 from mscap.errors import StoreError
+from mscap.infile import dataset_problem, one_line
 from mscap.scene.settings import MAX_CAPACITORS, MAX_SCENE_BYTES
 from mscap.service.schema import (HISTORY_COLUMNS, OPTIONAL_HISTORY, RUN_ATTRS, RUN_DATASETS, SCHEMA_VERSION,
                                   TEMP_PREFIX)
 
-__all__ = ["REQUIRED_RUN_ATTRS", "REQUIRED_ROOT_ATTRS", "MAX_TEXT", "MAX_DATASET_BYTES", "RUN_NAME", "one_line",
-           "text_attr", "int_attr", "float_attr", "dataset_problem", "run_problem", "damaged_runs", "check_store"]
-
-
-def one_line(exc: BaseException) -> str:
-    """An h5py/HDF5 error as one line (HDF5's messages span several)."""
-    return " ".join(str(exc).split()) or type(exc).__name__
+__all__ = ["REQUIRED_RUN_ATTRS", "REQUIRED_ROOT_ATTRS", "MAX_TEXT", "RUN_NAME", "text_attr", "int_attr", "float_attr",
+           "run_problem", "damaged_runs", "check_store"]
 
 
 #: Run attributes every schema has; the others read as NaN when absent (schema 1).
@@ -34,13 +30,10 @@ _STATUSES = ("ok", "pruned", "failed")
 
 #: What an honest file holds at most; a file that declares more is refused before it is
 #: read. Texts: characters (the writer cuts a longer error or reason to fit). A dataset: its
-#: declared bytes (shape × item size; HDF5 can declare 6 GB in a 244 kB gzip file). The
-#: largest honest dataset is a run's outlines: 100 plates of 1,300 vertices (a 100 mm
-#: perimeter at 0.075 mm) are 2 MB, 30 times under the budget.
+#: declared bytes (:data:`mscap.infile.MAX_DATASET_BYTES`).
 MAX_TEXT = {"format": 64, "mscap_version": 64, "scene_name": 1000, "scene_path": 4096,
             "scene_toml": MAX_SCENE_BYTES, "scene_sha256": 64, "start_time": 64, "last_open_time": 64,
             "init": 64, "status": 16, "error": 20_000, "reason": 20_000}
-MAX_DATASET_BYTES = 64 * 2**20
 #: A run's group name: what :func:`mscap.service.selection.run_id` makes (``k3_s3007_lloyd``).
 RUN_NAME = re.compile(r"k[0-9]{1,6}_s[0-9]{1,19}_[a-z]{1,32}")
 _RUN_INTS = {"k": (1, MAX_CAPACITORS), "seed": (0, 2**63 - 1), "iterations": (0, 2**31), "rank": (0, 2**31)}
@@ -93,27 +86,6 @@ def _what(value) -> str:
     if isinstance(value, np.ndarray):
         return f"an array of shape {value.shape}"
     return f"{type(value).__name__} {str(value)[:40]!r}"
-
-
-def dataset_problem(obj, name: str, kind: str, ndim: int | None) -> str | None:
-    """What is wrong with ``obj`` as dataset ``name`` of dtype ``kind`` (numpy kinds,
-    ``"str"``: strings) and ``ndim`` dimensions, from its declared type and shape only;
-    ``None`` if nothing."""
-    if obj is None:
-        return f"no dataset {name!r}"
-    if not isinstance(obj, h5py.Dataset):
-        return f"{name!r} is a {type(obj).__name__.lower()}, not a dataset"
-    if ndim is not None and obj.ndim != ndim:
-        return f"dataset {name!r} has {obj.ndim} dimensions {obj.shape}, not {ndim}"
-    if kind == "str":
-        if h5py.check_string_dtype(obj.dtype) is None:
-            return f"dataset {name!r} holds {obj.dtype}, not strings"
-    elif obj.dtype.kind not in kind:
-        return f"dataset {name!r} holds {obj.dtype}, not {'integers' if kind == 'iu' else 'numbers'}"
-    size = int(np.prod(obj.shape, dtype=np.float64)) * max(obj.dtype.itemsize, 8 if kind == "str" else 1)
-    if size > MAX_DATASET_BYTES:
-        return f"dataset {name!r} declares {obj.shape} ({size / 2**20:.0f} MB); at most {MAX_DATASET_BYTES // 2**20} MB"
-    return None
 
 
 def run_problem(store: h5py.File, rid: str, deep: bool = True) -> str | None:

@@ -27,7 +27,8 @@ from mscap import __version__
 from mscap.errors import StoreError, StoreFullError
 from mscap.scene.loader import read_multistart
 from mscap.scene.settings import MultistartSettings
-from mscap.service.checks import MAX_TEXT, check_store, damaged_runs, dataset_problem, one_line, run_problem
+from mscap.infile import dataset_problem, one_line
+from mscap.service.checks import MAX_TEXT, check_store, damaged_runs, run_problem
 from mscap.outfile import ResultsFile, WriteLock, check_output_path, room_text
 from mscap.design.history import DEFAULT_TERMS, history_fields
 from mscap.infile import check_regular
