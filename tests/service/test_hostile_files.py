@@ -1,5 +1,6 @@
 """Results files are hostile until checked (issue 48): crafted and mutated files through
-``inspect``, ``inspect --json``, ``inspect --runs``, ``plot`` and ``merge``. Every one ends
+``inspect``, ``inspect --json``, ``inspect --runs``, ``plot``, ``merge`` and (the refused
+ones) ``calibrate --design FILE.h5:RUN``. Every one ends
 in exit 0 or in one ``mscap: error:`` line naming the file (never a traceback), within a
 bounded time and memory: a dataset that declares more points than an honest file holds
 is refused from its declared shape, before a byte of it is read. ``merge`` refuses what
@@ -169,3 +170,43 @@ def test_a_long_error_is_cut_when_written_not_refused_when_read(tmp_path, free_p
         error = read_run(f, rid).error
     assert error.startswith("ElasticError: xxx") and error.endswith(" ... [cut]") and len(error) == 20_000
     assert main(["inspect", str(path), "--runs"]) == 0
+
+
+@pytest.fixture
+def honest_calibrated(tmp_path, write_scene):
+    """An honest results file of a scene with ``[calibration]``, and that scene's path."""
+    from mscap.scene import load_scene
+    from tests.calibration.test_calibration import calibration_scene
+
+    scene_path = write_scene(calibration_scene(), "calibrated.toml")
+    path = tmp_path / "honest_calibrated.h5"
+    with open_store(path, load_scene(scene_path)) as store:
+        for k, seed in ((2, 2000), (3, 3000)):
+            write_run(store, synthetic_record(k, seed))
+    return path, scene_path
+
+
+@pytest.mark.parametrize("name", sorted(n for n, (_, words) in MUTATIONS.items() if words is not None))
+def test_calibrate_refuses_a_hostile_design_file_before_it_simulates(honest_calibrated, tmp_path, capsys, name):
+    """``mscap calibrate SCENE --design FILE.h5:RUN`` reads the run through the same checks:
+    one line naming the file, before a pose is simulated (the honest file's design reads)."""
+    from mscap.scene import load_scene
+    from mscap.service.designs import design_layouts
+
+    honest, scene_path = honest_calibrated
+    spec = f"{{}}:{RUN.split('/')[1]}"
+    assert [label for label, _ in design_layouts(load_scene(scene_path), spec.format(honest), None)] == \
+        ["k3_s3000_random (optimised)", "k3_s3000_random:initial"]
+    mutate, words = MUTATIONS[name]
+    path = tmp_path / "hostile.h5"
+    path.write_bytes(honest.read_bytes())
+    with h5py.File(path, "r+") as f:
+        mutate(f)
+    with within(30):
+        status = main(["calibrate", str(scene_path), "--design", spec.format(path), "--cache",
+                       str(tmp_path / "cache.h5"), "-o", str(tmp_path / "cal"), "-q"])
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert "Traceback" not in err and status == 2 and len(lines) == 1, (name, err[-2000:])
+    assert lines[0].startswith("mscap: error: ") and str(path) in lines[0] and words in lines[0], (name, lines[0])
+    assert not (tmp_path / "cache.h5").exists()
