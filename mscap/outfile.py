@@ -32,7 +32,7 @@ from pathlib import Path
 import h5py
 
 from mscap.errors import StoreError, StoreFullError
-from mscap.outputs import output_directory
+from mscap.outputs import special_kind, output_directory
 
 __all__ = ["check_output_path", "WriteLock", "ResultsFile", "reserve", "room_text"]
 
@@ -44,7 +44,8 @@ _NO_LOCKING = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
 
 def check_output_path(path) -> Path:
     """``path`` as a file mscap may create or overwrite: not a symbolic link (dangling or
-    not) nor a directory; its missing parent directories are created.
+    not), a directory, a FIFO, a device or a socket; its missing parent directories are
+    created.
 
     Raises
     ------
@@ -59,6 +60,10 @@ def check_output_path(path) -> Path:
                          "through a link: give the path of the file itself")
     if path.is_dir():
         raise StoreError(f"{path} is a directory; give a file name, e.g. {path / 'results.h5'}")
+    special = special_kind(path)
+    if special:  # HDF5 would fail on it and the clean-up would then delete it
+        raise StoreError(f"{path} is {special}, not a file mscap writes; give the path of a regular file or "
+                         "of a new one")
     output_directory(path.parent, f"{path}: its directory")
     return path
 

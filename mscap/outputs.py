@@ -30,8 +30,8 @@ from typing import Callable, Iterable, Sequence
 
 from mscap.errors import MscapError
 
-__all__ = ["printable", "EscapedStream", "output_directory", "replace_file", "replace_text", "replace_csv", "file_stem", "file_stems",
-           "MAX_STEM", "split_design_spec"]
+__all__ = ["printable", "EscapedStream", "output_directory", "replace_file", "special_kind", "replace_text",
+           "replace_csv", "file_stem", "file_stems", "MAX_STEM", "split_design_spec"]
 
 #: Longest file stem made from a name (file systems allow 255 bytes per component, and a
 #: suffix such as ``_elastic.vtu`` and the temporary file's prefix must fit beside it).
@@ -55,6 +55,22 @@ def output_directory(path: str | Path, option: str) -> Path:
     return out
 
 
+def special_kind(path: Path) -> str:
+    """What ``path`` itself (a link not followed) is when it is neither missing, a regular
+    file, a directory nor a link: "a FIFO", "a socket", ...; else ``""``."""
+    import stat
+
+    from mscap.infile import file_kind
+
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return ""
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode) or stat.S_ISLNK(mode):
+        return ""
+    return file_kind(mode)
+
+
 def replace_file(path: str | Path, write: Callable[[Path], object]) -> Path:
     """Call ``write(temporary)`` on a new file beside ``path`` (same suffix, so writers
     that pick a format by it still do), then rename it to ``path``: a link named ``path``
@@ -62,6 +78,9 @@ def replace_file(path: str | Path, write: Callable[[Path], object]) -> Path:
     path = Path(path)
     if path.is_dir() and not path.is_symlink():
         raise MscapError(f"{path}: is a directory, cannot write a file there")
+    special = special_kind(path)
+    if special:  # a FIFO or a device someone made there is theirs, not an output to replace
+        raise MscapError(f"{path}: is {special}; give the path of a regular file or of a new one")
     temporary = path.parent / f".mscap-{os.getpid()}-{secrets.token_hex(4)}{path.suffix}"
     try:  # O_EXCL: a new file (never a link's target), with the umask's permissions
         os.close(os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))

@@ -17,7 +17,8 @@ def add_parser(sub) -> None:
                                    "k with the plateau tolerance band of the chosen k (paper Fig. 10). "
                                    "The selection is recomputed from the stored runs (see docs/hdf5.md).")
     p.add_argument("results", help="results file (.h5)")
-    p.add_argument("-o", "--output", metavar="FIGURE.png", required=True, help="figure file (.png)")
+    p.add_argument("-o", "--output", metavar="FIGURE.png", required=True,
+                   help="figure file: .png (also a name without a suffix), .pdf, .svg, ...")
     p.add_argument("--dpi", type=int, default=120, help="resolution (dots per inch)")
     p.set_defaults(run=run)
 
@@ -25,14 +26,19 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from pathlib import Path
 
+    from mscap.errors import MscapError
     from mscap.outputs import output_directory, replace_file
-    from mscap.viz.layouts import plot_results
+    from mscap.viz.layouts import figure_format, plot_results
 
+    try:
+        fmt = figure_format(args.output)
+    except ValueError as exc:
+        raise MscapError(f"plot -o {exc}") from None
     # Written beside its name and renamed over it: a link there is replaced, never followed
     # (the figure went to the link's target), and a failed plot leaves no partial file.
     output_directory(Path(args.output).parent, "plot -o")
     drawn = []
-    replace_file(args.output, lambda path: drawn.extend(plot_results(args.results, path, dpi=args.dpi)))
+    replace_file(args.output, lambda path: drawn.extend(plot_results(args.results, path, dpi=args.dpi, fmt=fmt)))
     items = drawn
     chosen = next((p.k for p in items if p.chosen), None)
     print(f"wrote {args.output}: {len(items)} k value(s)"

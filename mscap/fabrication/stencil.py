@@ -24,7 +24,7 @@ from mscap.errors import FabricationError
 from mscap.fabrication.router import Routing
 
 __all__ = ["REGISTRATION_OFFSET_MM", "registration_marks", "layer_regions", "write_dxf", "write_svg",
-           "read_stencil", "regions"]
+           "read_stencil", "regions", "MAX_STENCIL_BYTES"]
 
 #: The registration crosses sit this far outside the sheet's bounding box, 6 mm long and
 #: 0.6 mm wide (a cutter makes them; a pin or a printed cross lines them up).
@@ -96,6 +96,10 @@ def write_svg(path: Path, groups: dict[str, list[Polygon]], bounds) -> None:
     ET.ElementTree(svg).write(path, encoding="utf-8", xml_declaration=True)
 
 
+#: The largest stencil file read back (one of 100 nets of 5,000 vertices each is ~20 MB).
+MAX_STENCIL_BYTES = 64 * 2**20
+
+
 def read_stencil(path: Path) -> dict[str, list]:
     """The groups of a stencil file (DXF or SVG) as lists of rings ((n, 2) arrays, mm,
     sheet coordinates).
@@ -105,7 +109,16 @@ def read_stencil(path: Path) -> dict[str, list]:
     FabricationError
         Not a stencil file mscap can read (an open polyline, a path that is not closed).
     """
+    from mscap.infile import check_regular
+
     path = Path(path)
+    try:  # ezdxf and ElementTree would wait on a FIFO for ever and read a device until memory ends
+        check_regular(path, "a stencil file")
+        if path.stat().st_size > MAX_STENCIL_BYTES:
+            raise ValueError(f"is {path.stat().st_size} bytes; a stencil file mscap writes is at most "
+                             f"{MAX_STENCIL_BYTES // 2**20} MiB")
+    except (OSError, ValueError) as exc:
+        raise FabricationError(f"{path}: {exc}") from None
     rings: dict[str, list] = {}
     if path.suffix == ".dxf":
         try:

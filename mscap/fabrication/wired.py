@@ -118,14 +118,11 @@ def read_wiring_dir(directory, outlines=None) -> Wiring:
     from pathlib import Path
 
     from mscap.fabrication.stencil import read_stencil, regions
+    from mscap.infile import read_regular
 
     directory = Path(directory)
     try:
-        with open(directory / "fabrication.json", "rb") as f:
-            text = f.read(MAX_JSON_BYTES + 1)
-        if len(text) > MAX_JSON_BYTES:
-            raise ValueError(f"larger than {MAX_JSON_BYTES // 2**20} MiB")
-        document = json.loads(text)
+        document = json.loads(read_regular(directory / "fabrication.json", MAX_JSON_BYTES, "a fabrication.json"))
         slots = {int(s["capacitor"]): (int(s["row"]), int(s["column"])) for s in document["array"]["slots"]}
         rows, columns = int(document["array"]["rows"]), int(document["array"]["columns"])
         if outlines is None:

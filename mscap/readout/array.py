@@ -153,13 +153,14 @@ def read_wiring(path, k: int) -> CapacitorArray:
     """
     import json
 
+    from mscap.infile import read_regular
+
     try:
-        with open(path, "rb") as f:
-            text = f.read(MAX_WIRING_BYTES + 1)
+        text = read_regular(path, MAX_WIRING_BYTES, "a fabrication.json")
     except OSError as exc:
         raise ReadoutError(f"--wiring {path}: cannot read it ({exc.strerror})") from None
-    if len(text) > MAX_WIRING_BYTES:
-        raise ReadoutError(f"--wiring {path}: larger than {MAX_WIRING_BYTES // 2**20} MiB, not a fabrication.json")
+    except ValueError as exc:  # a FIFO, a device, a directory, too large
+        raise ReadoutError(f"--wiring {path}: {exc}") from None
     try:
         array = json.loads(text)["array"]
         rows, columns = array["rows"], array["columns"]

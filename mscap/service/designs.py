@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
 __all__ = ["StoredDesign", "split_design_spec", "check_scene", "read_design", "load_design", "OPTIMIZE_FILES",
-           "OptimizeOutput", "write_optimize_output", "read_optimize_output", "design_layouts"]
+           "OptimizeOutput", "write_optimize_output", "read_optimize_output", "design_layouts", "MAX_JSON_BYTES"]
 
 log = logging.getLogger(__name__)
 
@@ -168,6 +168,11 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
     return summary
 
 
+#: The most of an ``mscap optimize`` JSON file that is read (an honest outlines.json of 100
+#: plates of 1,300 vertices is 5 MB).
+MAX_JSON_BYTES = 64 * 2**20
+
+
 def read_optimize_output(directory) -> OptimizeOutput:
     """The final outlines and the summary of an ``mscap optimize`` output directory.
 
@@ -176,11 +181,14 @@ def read_optimize_output(directory) -> OptimizeOutput:
     StoreError
         ``outlines.json`` or ``summary.json`` is missing or unreadable.
     """
+    from mscap.infile import read_regular
+
     directory = Path(directory)
     try:
-        outlines = json.loads((directory / "outlines.json").read_text())["outlines_mm"]
-        summary = json.loads((directory / "summary.json").read_text())
-    except (OSError, KeyError, ValueError) as exc:
+        outlines = json.loads(read_regular(directory / "outlines.json", MAX_JSON_BYTES, "an outlines.json"))
+        outlines = outlines["outlines_mm"]
+        summary = json.loads(read_regular(directory / "summary.json", MAX_JSON_BYTES, "a summary.json"))
+    except (OSError, KeyError, ValueError, TypeError) as exc:
         raise StoreError(f"{directory}: not an `mscap optimize` output directory "
                          f"(outlines.json, summary.json): {exc}") from None
     return OptimizeOutput(directory.name, tuple(np.array(o, dtype=float) for o in outlines), summary)

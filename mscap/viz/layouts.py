@@ -162,8 +162,25 @@ def _metric_panel(ax, selection, items: list[Panel]) -> None:
     ax.grid(alpha=0.3)
 
 
-def plot_results(results, output, dpi: int = 120) -> list[Panel]:
-    """Draw the figure of the results file ``results`` to ``output``; returns the panels.
+#: The figure formats ``mscap plot -o`` writes, by the output's suffix (matplotlib's Agg
+#: canvas); a name without a suffix is a PNG.
+FIGURE_FORMATS = ("png", "pdf", "svg", "eps", "ps", "jpg", "jpeg", "tif", "tiff", "webp")
+
+
+def figure_format(output) -> str:
+    """The format of a figure file named ``output``: its suffix's, or ``png`` without one
+    (matplotlib would add ``.png`` to the name, and the figure would not be where asked);
+    a ``ValueError`` for a suffix no figure has."""
+    suffix = Path(output).suffix.lower().lstrip(".")
+    if suffix and suffix not in FIGURE_FORMATS:
+        raise ValueError(f"{output}: a figure is one of .{', .'.join(FIGURE_FORMATS)} (or a name without a suffix: "
+                         f"PNG), not .{suffix}")
+    return suffix or "png"
+
+
+def plot_results(results, output, dpi: int = 120, fmt: str = "png") -> list[Panel]:
+    """Draw the figure of the results file ``results`` to ``output`` in the format ``fmt``
+    (:func:`figure_format`); returns the panels.
 
     Raises
     ------
@@ -235,6 +252,6 @@ def plot_results(results, output, dpi: int = 120) -> list[Panel]:
     fig.suptitle(f"{scene_name}: {what} per k; {headline}", fontsize=10)
     fig.tight_layout()
     Path(output).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(output, dpi=dpi)
+    fig.savefig(output, dpi=dpi, format=fmt)
     plt.close(fig)
     return items
