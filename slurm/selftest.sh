@@ -231,9 +231,14 @@ submit_resume() {   # submit_resume LAUNCHER [SRUN_ARGS]
 }
 cancels=("mpirun")
 srun --mpi=list 2>&1 | grep -q pmix && cancels+=("srun --mpi=pmix")
+declare -A cancelled=()
+for entry in "${cancels[@]}"; do   # side by side: each is cancelled once it has stored a run
+    read -r how how_args <<< "$entry"
+    cancelled[$how]=$(submit_resume "$how" "${how_args:-}")
+done
 for entry in "${cancels[@]}"; do
     read -r how how_args <<< "$entry"
-    first=$(submit_resume "$how" "${how_args:-}")
+    first=${cancelled[$how]}
     log="$res/resume-$how-$first.out"
     t0=$SECONDS
     until grep -q '^\[1/' "$log" 2>/dev/null; do
@@ -241,6 +246,11 @@ for entry in "${cancels[@]}"; do
         sleep 0.5
     done
     scancel "$first"
+done
+for entry in "${cancels[@]}"; do
+    read -r how how_args <<< "$entry"
+    first=${cancelled[$how]}
+    log="$res/resume-$how-$first.out"
     wait_job "$first" 120
     before=$(stored "$res/resume-$how.h5")
     (( before >= 1 && before < 4 )) || fail "the cancelled job $first ($how) left $before runs (expected 1 to 3)"

@@ -29,5 +29,6 @@ def test_shipped_scripts_on_a_real_slurm(capsys):
     if proc.returncode == 0 and "selftest: skipped:" in proc.stdout:
         pytest.skip(proc.stdout.strip().splitlines()[-1])
     assert proc.returncode == 0, proc.stderr[-2000:]
-    for check in ("1. single job", "2. array + merge", "3. scancel + resubmit", "4. time limit", "passed"):
+    for check in ("1. single job", "2. array + merge", "3. scancel (mpirun)", "3. resubmitted", "4. time limit",
+                  "passed"):
         assert f"selftest: {check}" in proc.stdout
