@@ -52,7 +52,8 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from mscap.cli.common import load_scene_for, progress_printer, start_mpi
     from mscap.service.multistart import run_multistart
-    from mscap.service.selection import start_index
+    from mscap.errors import MscapError
+    from mscap.service.selection import configurations, start_index
     from mscap.scene.loader import with_overrides
 
     comm = start_mpi().COMM_WORLD
@@ -62,12 +63,22 @@ def run(args) -> int:
     lo, hi = 0, None
     if args.seeds:
         a, _, b = args.seeds.partition(":")
-        lo, hi = int(a or 0), (int(b) if b else None)
+        try:
+            lo, hi = int(a or 0), (int(b) if b else None)
+        except ValueError:
+            raise MscapError(f"--seeds expects A:B (start indices, integers), got {args.seeds!r}") from None
 
     def keep(config) -> bool:
         i = start_index(config)
         return ((args.k_min is None or config.k >= args.k_min) and (args.k_max is None or config.k <= args.k_max)
                 and i >= lo and (hi is None or i < hi))
+
+    restricted = (args.k_min, args.k_max, args.seeds) != (None, None, None)
+    if restricted and not any(keep(c) for c in configurations(scene)):  # a typo would otherwise do nothing, quietly
+        ms = scene.multistart
+        raise MscapError(f"{scene.path}: " + " ".join(f"{flag} {value}" for flag, value in (
+            ("--k-min", args.k_min), ("--k-max", args.k_max), ("--seeds", args.seeds)) if value is not None)
+            + f" selects none of its starts (k {ms.k_min}..{ms.k_max}, start indices 0:{ms.starts_per_k})")
 
     rank = comm.Get_rank()
     if comm.Get_size() > 1:  # worker logs say which rank wrote them
@@ -79,9 +90,8 @@ def run(args) -> int:
                 handler.addFilter(lambda record: not getattr(record, "advice", False))
     say = progress_printer(args.quiet or rank > 0)
     summary = run_multistart(scene, args.output, comm, force=args.force, retry_failed=args.retry_failed,
-                             select_configs=None if (args.k_min, args.k_max, args.seeds) == (None, None, None)
-                             else keep, max_iterations=args.max_iterations, progress=say,
-                             heartbeat_s=args.heartbeat)
+                             select_configs=keep if restricted else None, max_iterations=args.max_iterations,
+                             progress=say, heartbeat_s=args.heartbeat)
     if rank == 0 and not args.quiet:
         print(f"{args.output}: {summary['runs_done']} runs this time ({summary['runs_failed']} failed)"
               + ("; stopped early" if summary["stopped"] else ""), flush=True)

@@ -285,15 +285,18 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
     return summary
 
 
-def choice_text(selection) -> str | None:
+def choice_text(selection, left: int = 0) -> str | None:
     """The run's closing lines on its choice: the chosen k and design, what the choice rests
     on (:meth:`~mscap.service.selection.Selection.verdict`), and advice when the plateau is
-    not confirmed; ``None`` when nothing was chosen."""
+    not confirmed; ``None`` when nothing was chosen. ``left``: the tasks a stopped job left
+    to do; the choice is then the stored runs' so far, and says so."""
     if selection.chosen_k is None:
         return None
     design = selection.chosen_design
     which = f"design {design}" if design != selection.chosen_run else f"run {design}"
-    return (f"chosen k = {selection.chosen_k} ({which}); {selection.verdict()}"
+    so_far = (f"so far ({left} task{'s' * (left != 1)} left: the job stopped; rerun the same command to complete "
+              "them, which may choose otherwise): ") if left else ""
+    return (f"{so_far}chosen k = {selection.chosen_k} ({which}); {selection.verdict()}"
             + (f"\n{selection.advice()}" if selection.advice() else ""))
 
 
@@ -390,7 +393,8 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         write_selection(store, final)  # also when nothing was left to do
     finally:
         store.close()  # on an error too, without writing more: the file holds what was stored
-    return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested, "choice": choice_text(final)}
+    left = total - done if stop.requested else 0
+    return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested, "choice": choice_text(final, left)}
 
 
 def stored_table(store, rule: PruneRule, kind: str) -> Rungs | Envelope:

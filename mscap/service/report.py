@@ -87,7 +87,9 @@ def _number(attrs, name: str) -> float:
 def cost_text(c: Cost) -> str:
     """One line: the core-hours of the runs that carry them, the largest worker, and the
     in-run calibration's wall time and worker-seconds."""
-    if not c.measured:
+    if not c.runs:
+        line = "cost: no run stored yet"
+    elif not c.measured:
         line = f"cost: no CPU time stored ({c.runs} run{'s' * (c.runs != 1)}, written before mscap recorded it)"
     else:
         line = (f"cost: {c.core_hours:.3g} core-hours of CPU (runs {c.run_cpu_s / 3600:.3g}, finer-mesh checks "

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -33,3 +34,21 @@ def test_enough_room_starts_mpi_and_a_running_mpi_is_not_checked(monkeypatch, tm
     assert common.start_mpi().COMM_WORLD.Get_size() >= 1
     monkeypatch.setattr(os, "statvfs", lambda path: SimpleNamespace(f_bavail=0, f_frsize=4096))
     assert common.start_mpi().COMM_WORLD.Get_size() >= 1  # MPI runs: its start-up is behind it
+
+
+@pytest.mark.parametrize("options, said", [
+    (["--k-min", "3", "--k-max", "2"], "--k-min 3 --k-max 2 selects none of its starts (k 2..3, start indices 0:"),
+    (["--k-min", "9"], "--k-min 9 selects none of its starts"),
+    (["--seeds", "7:7"], "--seeds 7:7 selects none of its starts"),
+    (["--seeds", "x:y"], "--seeds expects A:B (start indices, integers), got 'x:y'"),
+])
+def test_a_restriction_that_selects_no_start_is_one_line_not_a_quiet_nothing(tmp_path, capsys, options, said):
+    """``run --k-min 3 --k-max 2`` ran nothing and said "0 runs this time" (issue 49)."""
+    from mscap.cli import main
+
+    out = tmp_path / "r.h5"
+    quick = Path(__file__).resolve().parents[2] / "jobs" / "quick.toml"
+    assert main(["run", str(quick), "-o", str(out), *options]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mscap: error: ") and said in err and "\n" not in err
+    assert not out.exists()

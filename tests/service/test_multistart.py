@@ -519,6 +519,8 @@ def test_a_signal_to_any_rank_or_to_mpirun_stops_the_job_cleanly(scene_file, tmp
         assert "exited on signal" not in stderr               # no rank died of the signal
         assert "stopped: the finished runs are stored" in stderr
         assert stop_file.read_text() == "stopped\n"
+        # the answer of a stopped job is the stored runs' so far, and says so
+        assert re.search(r"^so far \(\d+ tasks? left: the job stopped; rerun the same command", stdout, flags=re.M), stdout
     else:  # killed during the stop or, when the busy workers reached a checkpoint within 1 s, after it
         assert stop_file.read_text() in (f"stopping {reason}\n", "stopped\n")
     deadline = time.monotonic() + 30

@@ -93,3 +93,11 @@ def test_a_file_written_before_the_cost_was_stored_says_so(tmp_path, scene):
     with read_store(path) as store:
         assert math.isnan(read_run(store, "k2_s2000_random").peak_rss_mb)
         assert cost_text(cost(store)) == "cost: no CPU time stored (1 run, written before mscap recorded it)"
+
+
+def test_a_file_with_no_run_says_so(tmp_path, scene):
+    """Not "written before mscap recorded it": nothing was stored yet (issue 49)."""
+    path = tmp_path / "r.h5"
+    open_store(path, scene).close()
+    with read_store(path) as store:
+        assert cost_text(cost(store)) == "cost: no run stored yet"
