@@ -32,7 +32,7 @@ from pathlib import Path
 import h5py
 
 from mscap.errors import StoreError, StoreFullError
-from mscap.outputs import special_kind, output_directory
+from mscap.outputs import output_directory, special_kind
 
 __all__ = ["check_output_path", "WriteLock", "ResultsFile", "reserve", "room_text"]
 

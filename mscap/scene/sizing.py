@@ -362,10 +362,9 @@ def poke_far_edge(elastic, mesh: MeshSettings, poses, given: dict) -> float | No
 
 
 def refines_pokes(elastic, mesh: MeshSettings) -> bool:
-    """Whether the elastic mesh of ``elastic`` (``[elastic]``) beside an electrostatic mesh
-    of ``mesh`` gets :func:`p2_poke_refinement`: a P2 mesh of its
-    own with ``refine_pokes``, beside an electrostatic mesh refined under the balls too
-    (its ``zones``: a tolerance or a signal tolerance). A finer deformation under a ball
+    """Whether the elastic mesh of ``elastic`` (``[elastic]``) gets :func:`p2_poke_refinement`:
+    a P2 mesh of its own with ``refine_pokes``, beside an electrostatic mesh (``mesh``)
+    refined under the balls too (its ``zones``: a tolerance or a signal tolerance). A finer deformation under a ball
     sampled by a coarse electrostatic mesh moves the signal away from converged:
     jobs/quick.toml's hand-set mesh has no zones, and the refined elastic mesh put its
     initial layout's min L1 at 0.632 pF against 0.600 uniform, its finer-mesh check
