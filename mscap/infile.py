@@ -55,12 +55,15 @@ def file_kind(mode: int) -> str:
     return next((name for test, name in _KINDS if test(mode)), "not a regular file")
 
 
-def check_regular(path, what: str) -> None:
-    """A ``ValueError`` unless ``path`` (links followed) is a regular file; ``OSError``
-    when it cannot be looked at. A ``stat`` never blocks, even on a FIFO."""
-    mode = os.stat(path).st_mode
-    if not stat.S_ISREG(mode):
-        raise ValueError(f"is {file_kind(mode)}, not {what}")
+def check_regular(path, what: str, limit: int | None = None) -> None:
+    """A ``ValueError`` unless ``path`` (links followed) is a regular file, of at most
+    ``limit`` bytes when given; ``OSError`` when it cannot be looked at. A ``stat`` never
+    blocks, even on a FIFO."""
+    info = os.stat(path)
+    if not stat.S_ISREG(info.st_mode):
+        raise ValueError(f"is {file_kind(info.st_mode)}, not {what}")
+    if limit is not None and info.st_size > limit:
+        raise ValueError(f"is {info.st_size} bytes; {what} mscap writes is at most {limit // 2**20} MiB")
 
 
 def one_line(exc: BaseException) -> str:

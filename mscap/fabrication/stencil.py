@@ -113,10 +113,7 @@ def read_stencil(path: Path) -> dict[str, list]:
 
     path = Path(path)
     try:  # ezdxf and ElementTree would wait on a FIFO for ever and read a device until memory ends
-        check_regular(path, "a stencil file")
-        if path.stat().st_size > MAX_STENCIL_BYTES:
-            raise ValueError(f"is {path.stat().st_size} bytes; a stencil file mscap writes is at most "
-                             f"{MAX_STENCIL_BYTES // 2**20} MiB")
+        check_regular(path, "a stencil file", MAX_STENCIL_BYTES)
     except (OSError, ValueError) as exc:
         raise FabricationError(f"{path}: {exc}") from None
     rings: dict[str, list] = {}
