@@ -23,7 +23,8 @@ the scene's own layout, and reports from the file's ``/calibration``:
 
     .venv/bin/python benchmarks/objective_rank.py jobs/pneumatic_quick.toml [--widen 0.25 [--axes AXIS ...]]
         [--multistart-seed 1 --lloyd-fraction 0.5 --starts-per-k 3] [--calibrate-best N] [--scene-start]
-        [--distance readback] [--no-scene-start --sensitivity-fraction 0.5] [--tag shipped] [--out out/objective_rank]
+        [--distance readback] [--no-scene-start --sensitivity-fraction 0.5] [--no-revival] [--tag shipped]
+        [--out out/objective_rank]
 
 ``--widen F`` widens every training axis of the scene's ``[calibration.training]`` by F of
 its span (upwards from 0, else about its centre) (the change of issue 45: +25 % made the
@@ -74,18 +75,23 @@ def widened(text: str, fraction: float, axes=()) -> str:
     return head + sep + body + nxt + tail
 
 
-def with_multistart(text: str, **values) -> str:
-    """The scene text with ``[multistart]`` keys set (added after the table's header)."""
+def with_keys(text: str, table: str, **values) -> str:
+    """The scene text with keys of ``[table]`` set (added after the table's header)."""
     values = {key: value for key, value in values.items() if value is not None}
-    head, sep, rest = text.partition("\n[multistart]\n")
+    head, sep, rest = text.partition(f"\n[{table}]\n")
     if not sep:
-        return text if not values else sys.exit("the scene has no [multistart] table")
+        return text if not values else sys.exit(f"the scene has no [{table}] table")
     body, nxt, tail = rest.partition("\n[")
-    for key in values:  # only in the [multistart] table: [calibration.noise] has a seed too
+    for key in values:  # only in this table: [calibration.noise] has a seed too
         body = re.sub(rf"^{key} = .*\n?", "", body, flags=re.M)
     lines = "".join(f"{key} = {str(value).lower() if isinstance(value, bool) else repr(value)}\n"
                     for key, value in values.items())
     return head + sep + lines + body + nxt + tail
+
+
+def with_multistart(text: str, **values) -> str:
+    """The scene text with ``[multistart]`` keys set."""
+    return with_keys(text, "multistart", **values)
 
 
 def spearman(a, b) -> float:
@@ -108,6 +114,8 @@ def main() -> None:
     parser.add_argument("--sensitivity-fraction", type=float, help="[multistart] sensitivity_fraction")
     parser.add_argument("--distance", choices=("reconstruction", "readback"),
                         help="the [optimizer] distance to design for (default: the scene's)")
+    parser.add_argument("--no-revival", action="store_true",
+                        help="[optimizer] revive_silent = false: silent plates stay where they are")
     parser.add_argument("--tag", default="shipped")
     parser.add_argument("--out", default="out/objective_rank")
     parser.add_argument("--csv", default=str(ROOT / "docs" / "objective_rank.csv"))
@@ -130,6 +138,8 @@ def main() -> None:
                            starts_per_k=args.starts_per_k,
                            scene_start=True if args.scene_start else False if args.no_scene_start else None,
                            sensitivity_fraction=args.sensitivity_fraction)
+    if args.no_revival:
+        text = with_keys(text, "optimizer", revive_silent=False)
     scene_file = out / f"{name}.toml"
     scene_file.write_text(text)
     results, log = out / f"{name}.h5", out / f"{name}.log"

@@ -20,8 +20,8 @@ DEFAULT_TERMS = ("d", "barrier", "smoothing")
 #: The columns around the objective's terms: before them the iteration (accepted steps so
 #: far), the cascade level and J; after them ‖dJ/dq‖ (2-norm), the step (largest control
 #: displacement, mm), min pairwise L1 distance of the poses' capacitance vectors (pF), the
-#: event ("start", "step", "remesh", "cascade", "converged", "stalled", "resolved",
-#: "max_iterations", "pruned"), evaluations in the line search, Newton iterations of all
+#: event ("start", "step", "remesh", "revive" (:mod:`mscap.design.revival`), "cascade",
+#: "converged", "stalled", "resolved", "max_iterations", "pruned"), evaluations in the line search, Newton iterations of all
 #: poses in the accepted evaluation, minimum 2D angle of the electrostatic mesh (deg), the
 #: largest size ratio of two neighbouring triangles of it (:mod:`mscap.mesh.shape`; NaN in
 #: files written before 2026-12-05), smallest gap between two outlines or an outline and

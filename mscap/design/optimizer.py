@@ -26,6 +26,10 @@ curvature pairs still describe J; restarting it cost the wrist 10 % of its bound
 change in a step or over the last ``stall_window`` steps on one mesh, or gradient norm,
 per level) the controls double (:meth:`Design.refined`) for ``cascade_levels`` more levels.
 
+A plate that reads nothing gets no gradient; at the start and when a level converges such
+a plate moves to where the design poses strain the sheet in a way the others do not read,
+if J falls (``[optimizer] revive_silent``, :mod:`mscap.design.revival`; event ``revive``).
+
 With ``[fabrication] route_during_optimisation`` the leads are routed at the start, after
 every remesh and refinement, and at the end (:meth:`Design.rerouted`); the evaluation there
 takes the new leads' share without a new solve (:meth:`Design.reevaluated`), and each
@@ -45,6 +49,7 @@ from mscap.design.feasibility import feasible_step
 from mscap.design.history import Record
 from mscap.design.pipeline import Design, DesignError, Evaluation
 from mscap.design.remesh import min_angle, needs_remesh, remesh, size_ratio
+from mscap.design.revival import revival
 from mscap.errors import GeometryError, InvertedMeshError, MeshError
 from mscap.fem.elastic.problem import ElasticError
 from mscap.fem.electrostatic import ElectrostaticError
@@ -213,8 +218,46 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
         fresh = min_angle(design, e.q)
         record("remesh", evaluations=evaluations)  # the plateau window restarts: J on a new mesh differs by its error
 
+    def revive_here() -> bool:
+        """Move the plates that read nothing to where they would (mscap.design.revival),
+        if J falls; whether it did."""
+        nonlocal design, e, g, fresh, step_length
+        found = revival(design, e) if settings.revive_silent else None
+        if found is None:
+            return False
+        moved, outlines = found
+        design.close()  # its solvers: the trial design makes its own; they come back if it is refused
+        new = None
+        try:
+            new, warm = remesh(design, e, outlines)
+            trial = new.evaluate(new.deformer.zeros(), warm=warm)
+        except _TRIAL_ERRORS as exc:
+            if new is not None:
+                new.close()
+            say(f"revival of plate(s) {', '.join(map(str, moved.plates))} failed ({exc}); kept where they are")
+            return False
+        plates = ", ".join(f"{j} to ({o[:, 0].mean():.1f}, {o[:, 1].mean():.1f}) mm"
+                           for j, o in zip(moved.plates, moved.outlines))
+        if not trial.J < e.J:
+            trial.release()
+            new.close()
+            say(f"silent plate(s) {plates} would raise J {e.J:+.6e} -> {trial.J:+.6e}; kept where they are")
+            return False
+        say(f"revived silent plate(s) {plates}: J {e.J:+.6e} -> {trial.J:+.6e}")
+        e.release()
+        design, e = new, trial
+        reroute("revival")
+        g = _gradient(design, e)
+        memory.reset()
+        step_length = settings.first_step_mm
+        fresh = min_angle(design, e.q)
+        record("revive")
+        return True
+
     record("start")
+    revived_at = set()  # the levels whose end has tried a revival
     try:
+        revive_here()
         while True:
             converged = level_iterations >= max_iterations
             reason = "max_iterations" if converged else reason
@@ -277,6 +320,11 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                             remesh_here()
             if not converged:
                 continue
+            if reason in ("converged", "stalled", "resolved") and level not in revived_at:
+                revived_at.add(level)
+                if revive_here():
+                    level_iterations, reason = 0, ""  # the moved plate gets the level's steps
+                    continue
             if level >= cascade_levels or reason in ("zero gradient", "pruned"):
                 reroute("end")
                 record(reason)

@@ -73,10 +73,11 @@ def resampled_layout(outlines, spacing_mm: float, finest_mm: float, scene) -> La
                 raise
 
 
-def remesh(design: Design, evaluation: Evaluation) -> tuple[Design, list]:
-    """A new design meshed from the outlines at ``evaluation.q`` (resampled at the
-    scene's outline edge length, the same number of controls per outline) and each pose's
-    displacement interpolated onto the new elastic mesh (the warm start)."""
+def remesh(design: Design, evaluation: Evaluation, outlines=None) -> tuple[Design, list]:
+    """A new design meshed from the outlines at ``evaluation.q`` (or from ``outlines``: a
+    revived plate's, :mod:`mscap.design.revival`), resampled at the scene's outline edge
+    length, the same number of controls per outline, and each pose's displacement
+    interpolated onto the new elastic mesh (the warm start)."""
     scene = design.scene
     # Polygon vertices about every half elastic outline edge: each vertex is also embedded
     # in the elastic mesh, so resampling at the fine outline spacing would refine the
@@ -87,7 +88,8 @@ def remesh(design: Design, evaluation: Evaluation) -> tuple[Design, list]:
     elastic, edge = scene.elastic, design.sheet.mesh.edge_length_outline_mm  # the run's sizes
     half = 0.5 * min(elastic.edge_length_outline_mm or 0.5 * elastic.edge_length_mm, elastic.edge_length_mm)
     spacing = edge * max(1, int(np.floor(half / edge + 1e-9)))
-    layout = resampled_layout(design.deformer.outlines(evaluation.q), spacing, edge, scene)
+    outlines = design.deformer.outlines(evaluation.q) if outlines is None else outlines
+    layout = resampled_layout(outlines, spacing, edge, scene)
     counts = np.bincount(design.deformer.control_outline, minlength=layout.k)
     new = replace(build_design(scene, sheet=replace(design.sheet, layout=layout), count=counts,
                                objective=design.objective, poses=design.designed),

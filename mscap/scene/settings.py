@@ -282,7 +282,11 @@ class OptimizerSettings:
     ``resolve_steps``: a trial is accepted only if it also lowers J + δJ, its value plus
     the evaluation's estimated discretisation error (:mod:`mscap.design.resolution`); a
     level whose last line search failed only on that stops as ``"resolved"``
-    (``false``: Armijo on J alone, the behaviour before 2026-12-05)."""
+    (``false``: Armijo on J alone, the behaviour before 2026-12-05). ``revive_silent``: a
+    plate that reads nothing (leaving it out changes the capacitance term by under 1 %)
+    moves, at the start and when a level converges, to where the design poses strain the
+    sheet in a way the other plates do not read, if J falls (:mod:`mscap.design.revival`;
+    ``false``: never, the behaviour before 2026-12-06)."""
 
     distance: str = "pF"
     tau_pF2: float = 1.0
@@ -308,6 +312,7 @@ class OptimizerSettings:
     min_feature_mm: float = 0.0
     screen_trials: bool = True
     resolve_steps: bool = True
+    revive_silent: bool = True
 
 
 @dataclass(frozen=True)

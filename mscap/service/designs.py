@@ -156,6 +156,7 @@ def write_optimize_output(directory, scene: Scene, initial, result, seed: int, i
                "initial_min_l1_pF": result.initial.min_l1_pF, "final_min_l1_pF": result.evaluation.min_l1_pF,
                "initial_J": result.initial.J, "final_J": result.evaluation.J,
                "remeshes": sum(r.event == "remesh" for r in result.history),
+               "revivals": sum(r.event == "revive" for r in result.history),
                **({"reroutes": [asdict(r) for r in result.reroutes]} if result.reroutes else {}),
                **({} if bound is None else {"initial_bound_mm": bound.value(result.initial.capacitance_pF),
                                             "final_bound_mm": bound.value(result.evaluation.capacitance_pF)}),
