@@ -40,16 +40,17 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
 from mscap.design.feasibility import feasible_step
 from mscap.design.history import Record
-from mscap.design.pipeline import Design, DesignError, Evaluation
+from mscap.design.pipeline import Design, DesignError, Evaluation, build_design
 from mscap.design.remesh import min_angle, needs_remesh, remesh, size_ratio
 from mscap.design.revival import revival
+from mscap.design.state import OptimizerState
 from mscap.errors import GeometryError, InvertedMeshError, MeshError
 from mscap.fem.elastic.problem import ElasticError
 from mscap.fem.electrostatic import ElectrostaticError
@@ -57,7 +58,7 @@ from mscap.fem.petsc import LinearSolveError
 from mscap.fem.simulate import release_freed_memory
 from mscap.geometry.layout import Layout, min_gap_mm
 
-__all__ = ["OptimizeResult", "optimize"]
+__all__ = ["OptimizeResult", "optimize", "resumed_design"]
 
 log = logging.getLogger(__name__)
 
@@ -131,34 +132,61 @@ class _LBFGS:
 
 def optimize(design: Design, q0=None, progress: Callable[[str], None] | None = None,
              max_iterations: int | None = None, cascade_levels: int | None = None,
-             checkpoint: Callable[[Record], bool] | None = None) -> OptimizeResult:
+             checkpoint: Callable[[Record], bool] | None = None,
+             keep: Callable[[Callable[[], OptimizerState]], None] | None = None,
+             resume: OptimizerState | None = None) -> OptimizeResult:
     """Minimise J from ``q0`` (default 0) of ``design``; settings from the scene's
     ``[optimizer]`` (``max_iterations`` per level, ``cascade_levels`` refinements).
     After every accepted step ``checkpoint(its history record)`` may return ``False`` to
     stop here (reason ``"pruned"``, :mod:`mscap.service.pruning`).
 
+    At the top of every iteration ``keep(state)`` is called with a function that makes the
+    :class:`~mscap.design.state.OptimizerState` there (made only if called: the caller
+    decides when a state is worth writing). ``resume``: go on from such a state;
+    ``design`` must then be :func:`resumed_design` of it (``q0`` is ignored), and the
+    other arguments those of the stopped call.
+
     An exception leaves with the history up to it as its ``history`` attribute (a tuple
     of records), so that a failed start keeps what it did (:func:`mscap.service.schema.failed_record`)."""
-    history: list[Record] = []
+    history: list[Record] = [] if resume is None else list(resume.history)
     try:
-        return _optimize(design, q0, progress, max_iterations, cascade_levels, checkpoint, history)
+        return _optimize(design, q0, progress, max_iterations, cascade_levels, checkpoint, history, keep, resume)
     except Exception as exc:
         exc.history = tuple(history)
         raise
 
 
+def resumed_design(scene, sheet, state: OptimizerState, designed=None) -> Design:
+    """The design of ``state`` rebuilt: ``sheet`` (the start's: its mesh sizes hold for the
+    whole start) meshed from the state's layout with its control counts (``designed``: the
+    design poses, default the scene's), then each control refinement of its cascade
+    replayed."""
+    design = build_design(scene, sheet=replace(sheet, layout=Layout(tuple(state.outlines))), count=state.counts,
+                          poses=designed)
+    for q in state.cascades:
+        design = design.refined(q)
+    return design
+
+
 def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, checkpoint,
-              history: list[Record]) -> OptimizeResult:
+              history: list[Record], keep=None, resume: OptimizerState | None = None) -> OptimizeResult:
     """:func:`optimize`, appending to ``history`` as it goes."""
     say = progress or (lambda message: None)
     settings = design.scene.optimizer
     max_iterations = settings.max_iterations if max_iterations is None else max_iterations
     cascade_levels = settings.cascade_levels if cascade_levels is None else cascade_levels
-    started = time.perf_counter()
+    started = time.perf_counter() - (resume.time_s if resume is not None else 0.0)
     q = design.deformer.zeros() if q0 is None else np.array(q0, dtype=float)
     level, iteration, level_iterations, reason = 0, 0, 0, ""
     routed, reroutes = design.scene.fabrication.route_during_optimisation, []
-    e = design.evaluate(q)
+    # How the current design was made (mscap.design.state): the sheet last meshed, the control
+    # counts of that build (None: the scene's spacing) and the q of each refinement since.
+    lineage = (design.sheet, None, [])
+    if resume is not None:
+        q = resume.q
+        lineage = (replace(design.sheet, layout=Layout(tuple(resume.outlines))), resume.counts,
+                   list(resume.cascades))
+    e = design.evaluate(q, warm=None if resume is None else list(resume.displacements))
 
     def reroute(event):  # the leads routed again at e.q; e re-evaluated with their share, no solve
         nonlocal design, e
@@ -176,13 +204,34 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
         reroutes.append(Reroute(event, iteration, change, before, e.J, design.wiring.summary, design.wiring.time_s))
         say(f"rerouted ({event}): the leads' share moved by up to {change:.3g} pF; J {before:+.6e} -> {e.J:+.6e}")
 
-    reroute("start")
+    if resume is None:
+        reroute("start")
     g = _gradient(design, e)
     initial = e.detached(keep_elastic=True)
     memory = _LBFGS()
     level_gradient = float(np.linalg.norm(g))
     fresh = min_angle(design, q)
     step_length = settings.first_step_mm
+    revived_at = set()  # the levels whose end has tried a revival
+    if resume is not None:
+        initial = replace(initial, q=resume.initial_q, J=resume.initial_J, terms=dict(resume.initial_terms),
+                          capacitance_pF=resume.initial_capacitance_pF, dJ_dC=None, offset_pF=None,
+                          error_J=float("nan"), margin_error_pF=float("nan"))
+        memory.pairs = [(np.array(s_), np.array(y_)) for s_, y_ in resume.memory]
+        level_gradient, fresh, step_length = resume.level_gradient, tuple(resume.fresh), resume.step_length
+        level, iteration, level_iterations, reason = (resume.level, resume.iteration, resume.level_iterations,
+                                                      resume.reason)
+        revived_at = set(resume.revived_at)
+
+    def state() -> OptimizerState:  # the optimiser here, at the top of an iteration
+        sheet, counts, cascades = lineage
+        return OptimizerState(
+            tuple(np.array(o) for o in sheet.layout.outlines), None if counts is None else np.array(counts),
+            tuple(np.array(c) for c in cascades), np.array(e.q), tuple(e.displacements()),
+            tuple((np.array(s_), np.array(y_)) for s_, y_ in memory.pairs), step_length, level, iteration,
+            level_iterations, reason, level_gradient, tuple(fresh), tuple(sorted(revived_at)), tuple(history),
+            np.array(initial.q), initial.J, dict(initial.terms), np.array(initial.capacitance_pF),
+            time.perf_counter() - started)
 
     def record(event, step=0.0, evaluations=1):  # evaluations of this event
         angle = min_angle(design, e.q)[0]
@@ -199,8 +248,10 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
             f"t {r.time_s:.1f} s")
 
     def remesh_here(evaluations=1):  # evaluations: the rejected trials that led here, and this one
-        nonlocal design, e, g, fresh, step_length
+        nonlocal design, e, g, fresh, step_length, lineage
+        counts = np.bincount(design.deformer.control_outline, minlength=len(design.sheet.layout.outlines))
         new, warm = remesh(design, e)
+        lineage = (new.sheet, counts, [])
         e.release()
         # Free the old design's solvers, meshes and skinning weights (and the old
         # evaluation's moved meshes) before the new design's first evaluation, not after:
@@ -221,7 +272,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
     def revive_here() -> bool:
         """Move the plates that read nothing to where they would (mscap.design.revival),
         if J falls; whether it did."""
-        nonlocal design, e, g, fresh, step_length
+        nonlocal design, e, g, fresh, step_length, lineage
         found = revival(design, e) if settings.revive_silent else None
         if found is None:
             return False
@@ -244,6 +295,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
             say(f"silent plate(s) {plates} would raise J {e.J:+.6e} -> {trial.J:+.6e}; kept where they are")
             return False
         say(f"revived silent plate(s) {plates}: J {e.J:+.6e} -> {trial.J:+.6e}")
+        lineage = (new.sheet, np.bincount(design.deformer.control_outline, minlength=len(outlines)), [])
         e.release()
         design, e = new, trial
         reroute("revival")
@@ -254,11 +306,14 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
         record("revive")
         return True
 
-    record("start")
-    revived_at = set()  # the levels whose end has tried a revival
+    if resume is None:
+        record("start")
     try:
-        revive_here()
+        if resume is None:
+            revive_here()
         while True:
+            if keep is not None:
+                keep(state)
             converged = level_iterations >= max_iterations
             reason = "max_iterations" if converged else reason
             if not converged:
@@ -329,6 +384,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
                 reroute("end")
                 record(reason)
                 break
+            lineage[2].append(np.array(e.q))
             design = design.refined(e.q)
             e.release()  # another mesh: its equilibria (kept) start the refined one, not its factorisations
             e = design.evaluate(design.deformer.zeros(), warm=e)

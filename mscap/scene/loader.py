@@ -686,6 +686,10 @@ def check_multistart(path: str, multistart: MultistartSettings) -> None:
     if not 0 <= multistart.sensitivity_fraction <= 1:
         raise SceneError(path, "multistart.sensitivity_fraction",
                          f"must lie in [0, 1], got {multistart.sensitivity_fraction!r}")
+    if not 0 <= multistart.checkpoint_minutes <= 10080:
+        raise SceneError(path, "multistart.checkpoint_minutes", f"must lie in [0, 10080] (minutes between two "
+                         f"stored states of a busy start; 0: only when the job stops), got "
+                         f"{multistart.checkpoint_minutes!r}")
     if multistart.seed > MAX_SEED:
         raise SceneError(path, "multistart.seed", f"must be <= {MAX_SEED}, got {multistart.seed!r}")
     if multistart.prune_rule not in PRUNE_RULES:

@@ -343,7 +343,10 @@ class MultistartSettings:
     its k (a hand-placed layout to improve on; :func:`mscap.service.selection.configurations`).
     ``sensitivity_fraction``: the first ``ceil(sensitivity_fraction · starts_per_k)`` starts
     of each k (before the Lloyd ones) are sensitivity-map starts, plates on the sheet's
-    regions that the design poses strain differently (:mod:`mscap.design.starts`)."""
+    regions that the design poses strain differently (:mod:`mscap.design.starts`).
+    ``checkpoint_minutes``: a busy start's optimiser state is stored this often (and when
+    the job stops), and a rerun continues it there (:mod:`mscap.service.checkpoints`; 0:
+    only when the job stops)."""
 
     k_min: int = 2
     k_max: int = 6
@@ -358,6 +361,7 @@ class MultistartSettings:
     prune_rule: str = "rungs"
     skip_repeated_starts: bool = True
     check_all_runs: bool = False
+    checkpoint_minutes: float = 10.0
     calibrate_best: int = 3
     calibrate_initial: bool = True
     calibrate_scene: bool = True

@@ -49,6 +49,7 @@ from typing import TYPE_CHECKING, Callable
 
 from mscap.fem.simulate import release_freed_memory
 from mscap.mesh.budget import check_meshes
+from mscap.service import checkpoints
 from mscap.service.accuracy import Equilibria, estimate_error, finer
 from mscap.design.readback import read_back_estimate
 from mscap import farm
@@ -101,16 +102,23 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
     a :class:`~mscap.service.heartbeat.Progress` after every accepted step (the master's
     heartbeat) and answers at each pruning rung (:func:`mscap.service.pruning.score`) with a
     :class:`~mscap.service.pruning.Verdict`; a start told to stop is stored as pruned. When
-    the master is stopping, ``ask`` raises :class:`~mscap.farm.Abandoned`, which
-    passes through: the start is not recorded and runs again on resume."""
+    the master is stopping, ``ask`` raises :class:`~mscap.farm.Abandoned`: the start
+    returns its last optimiser state (:class:`~mscap.service.checkpoints.Interrupted`), which
+    the master keeps for a rerun to continue, or, before its first state, lets the
+    ``Abandoned`` pass: the start is not recorded and runs again on resume. Every
+    ``[multistart] checkpoint_minutes`` the state goes to the master
+    (:class:`~mscap.service.checkpoints.Checkpoint`); ``config.resume``, a stored state, is
+    where the start goes on from."""
     from mscap.design.optimizer import optimize
-    from mscap.design.starts import start_design
+    from mscap.design.state import resumable
 
     release_freed_memory()  # what the previous start on this worker freed
     start, meter = time.perf_counter(), Meter()
     layout = None
+    keeper = _Keeper(config.id, ask, 60.0 * scene.multistart.checkpoint_minutes) \
+        if ask is not None and resumable(scene) else None
     try:
-        layout, design = start_design(scene, config.k, config.seed, config.init)
+        layout, design, resume = _start_or_resume(scene, config)
         sheet = design.sheet  # the start's layout, its meshes sized for it (sheet_for)
         designed = design.designed  # the design poses and their family (mscap.design.readback.design_poses)
         rule, kind, verdicts = PruneRule.from_settings(scene.multistart), score_kind(scene), []
@@ -126,10 +134,16 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
 
         handed = [design]
         del design  # optimize() holds the only reference: the first remesh frees the design
-        result = optimize(handed.pop(), max_iterations=max_iterations,
-                          checkpoint=checkpoint if ask is not None else None)
+        try:
+            result = optimize(handed.pop(), max_iterations=max_iterations,
+                              checkpoint=checkpoint if ask is not None else None, keep=keeper, resume=resume)
+        except farm.Abandoned:
+            if keeper is None or keeper.latest is None:
+                raise
+            return checkpoints.Interrupted(config.id, keeper.latest)
+        earlier = 0.0 if resume is None else resume.time_s  # a resumed start's earlier sessions
         record = replace(record_from_result(config.k, config.seed, config.init, layout, result, designed.poses,
-                                            time.perf_counter() - start, rank), cpu_s=meter.cpu_s)
+                                            time.perf_counter() - start + earlier, rank), cpu_s=meter.cpu_s)
         if result.reason == "pruned":
             record = replace(record, status="pruned", reason=verdicts[-1].reason(rule))
         bound = read_back_estimate(scene, designed)
@@ -151,6 +165,42 @@ def run_start(scene: Scene, config: StartConfig, rank: int = 0, max_iterations: 
         record = _with_check(scene, replace(sheet, layout=final), record, equilibria, bound, ask, share,
                              designed.poses)
     return replace(record, peak_rss_mb=meter.peak_rss_mb)  # the start's and its check's
+
+
+class _Keeper:
+    """The optimiser's ``keep``: the state at the top of each iteration, sent to the master
+    (``ask``) when ``interval_s`` has passed since the last one sent (0: never)."""
+
+    def __init__(self, run_id: str, ask, interval_s: float):
+        self.run_id, self.ask, self.interval_s = run_id, ask, interval_s
+        self.latest, self.sent = None, time.monotonic()
+
+    def __call__(self, state) -> None:
+        self.latest = state()
+        if self.interval_s > 0 and time.monotonic() - self.sent >= self.interval_s:
+            self.ask(checkpoints.Checkpoint(self.run_id, self.latest))
+            self.sent = time.monotonic()
+
+
+def _start_or_resume(scene: Scene, config: StartConfig):
+    """``(initial layout, design, state)`` of a start: its own first design
+    (:func:`~mscap.design.starts.start_design`, state ``None``), or, with ``config.resume``,
+    the design of that state (:func:`~mscap.design.optimizer.resumed_design`; one that
+    cannot be rebuilt is said and the start begins afresh)."""
+    from mscap.design.optimizer import resumed_design
+    from mscap.design.starts import start_design, start_layout
+    from mscap.scene.sizing import sheet_for
+
+    if config.resume is not None:
+        try:
+            layout = start_layout(scene, config.k, config.seed, config.init)
+            design = resumed_design(scene, sheet_for(scene, layout), config.resume)
+            return layout, design, config.resume
+        except Exception as exc:  # noqa: BLE001 — a state that does not fit: start over
+            log.warning("start %s: its checkpoint cannot be resumed (%s: %s); it runs from its beginning",
+                        config.id, type(exc).__name__, str(exc)[:200])
+    layout, design = start_design(scene, config.k, config.seed, config.init)
+    return layout, design, None
 
 
 def _with_check(scene: Scene, sheet, record, equilibria, bound, ask, share=None, poses=None):
@@ -310,6 +360,8 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         check_meshes(*finer(scene.sheet, scene.elastic), scene.poses)
     rule, kind = prune_rule(scene), score_kind(scene)
     store = open_store(path, scene, mpi_size=size, force=force)
+    if force:
+        checkpoints.drop_all(path)
     done = failed = 0
     ms = scene.multistart
     summaries = {}
@@ -329,6 +381,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         # leaves the short ones to fill the tail (jobs/quick.toml on 2 workers: busy
         # fraction 0.88 → 0.94, docs/performance.md §4). Results do not depend on the order.
         todo.sort(key=lambda c: -c.k)
+        todo, resumed = _with_checkpoints(path, todo, say)
         # A k's best stored without its check (a stop between the run and its check, or a
         # failed check): checked after the starts, if still the best (run_check asks).
         selected = {c.id for c in configs if select_configs is None or select_configs(c)}
@@ -347,15 +400,31 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             say(f"{len(pending)} of them the finer-mesh check{'s' if len(pending) > 1 else ''} of "
                 f"{', '.join(t.id for t in pending)}: the best of {'their' if len(pending) > 1 else 'its'} k, "
                 f"stored unchecked")
+        if resumed:
+            say(f"{len(resumed)} start{'s' if len(resumed) > 1 else ''} continue{'' if len(resumed) > 1 else 's'} "
+                f"from {'their' if len(resumed) > 1 else 'its'} stored state: {', '.join(resumed)}")
         if skipped:
             say(f"skipped {len(skipped)} Lloyd start{'s' if len(skipped) > 1 else ''} whose initial layout repeats "
                 f"an earlier start of its k: {', '.join(skipped)}")
         rungs = stored_table(store, rule, kind)
 
+        def keep(state: checkpoints.Checkpoint | checkpoints.Interrupted) -> str:
+            try:
+                checkpoints.save(path, state.id, state.state)
+            except (OSError, ValueError) as exc:  # a start that cannot be kept runs again from its beginning
+                return f"not kept ({exc})"
+            return f"kept in {checkpoints.directory(path)}"
+
         def record(rec) -> None:
             nonlocal done, failed
+            if isinstance(rec, checkpoints.Interrupted):  # the job is stopping: a rerun continues it
+                where = keep(rec)
+                say(f"{rec.id}: stopped at step {rec.state.iteration} (level {rec.state.level}); its state is "
+                    f"{where}: a rerun continues it")
+                return
             # Stored and fsync-ed, then /selection brought up to date, then announced.
             write_run(store, rec)
+            checkpoints.drop(path, rec.id)
             drop_calibration(store)  # a new run may beat the calibrated ones: calibrated again at the end
             if rule.enabled and rec.status == "ok":  # a path that ran to its end
                 rungs.finished(rec.k, *history_values(rule, kind, rec.history))
@@ -379,7 +448,12 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
 
         beaten = {}  # run -> the run of its k that beat it before its check
 
-        def answer(progress: Progress | Finished) -> Verdict | str | None:
+        def answer(progress: Progress | Finished | checkpoints.Checkpoint) -> Verdict | str | None:
+            if isinstance(progress, checkpoints.Checkpoint):
+                where = keep(progress)
+                if where.startswith("not"):
+                    say(f"{progress.id}: its state at step {progress.state.iteration} is {where}")
+                return None
             if isinstance(progress, Finished):
                 winner = beaten_by(progress, summaries.values())
                 if winner is not None:
@@ -395,6 +469,26 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         store.close()  # on an error too, without writing more: the file holds what was stored
     left = total - done if stop.requested else 0
     return {"runs_done": done, "runs_failed": failed, "stopped": stop.requested, "choice": choice_text(final, left)}
+
+
+def _with_checkpoints(path, todo: list, say) -> tuple[list, list[str]]:
+    """``todo`` with each start that has a stored state given it (``StartConfig.resume``),
+    and those starts as ``id (step n)``; a state that cannot be read is said and deleted."""
+    have = set(checkpoints.stored(path))
+    out, resumed = [], []
+    for config in todo:
+        state = None
+        if isinstance(config, StartConfig) and config.id in have:
+            try:
+                state = checkpoints.load(path, config.id)
+            except ValueError as exc:
+                say(f"{exc}: deleted; {config.id} runs from its beginning")
+                checkpoints.drop(path, config.id)
+        if state is not None:
+            config = replace(config, resume=state)
+            resumed.append(f"{config.id} (step {state.iteration})")
+        out.append(config)
+    return out, resumed
 
 
 def stored_table(store, rule: PruneRule, kind: str) -> Rungs | Envelope:

@@ -9,7 +9,7 @@ The rule is documented in ``docs/hdf5.md`` ("Selection").
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Iterable, Sequence
 
 from mscap.scene.loader import check_multistart
@@ -54,6 +54,8 @@ class StartConfig:
     k: int
     seed: int
     init: str
+    #: The optimiser state this start continues from (:mod:`mscap.service.checkpoints`), or ``None``.
+    resume: object = field(default=None, compare=False, repr=False)
 
     @property
     def id(self) -> str:

@@ -602,3 +602,93 @@ def test_a_rank_done_early_waits_for_the_others_without_a_core(tmp_path):
     cpu, wall = rows[1]
     assert wall > 1.0  # it did wait for rank 0
     assert cpu < 0.2 * wall, rows  # polling at full speed would spend about the whole wait
+
+
+def _one_start(tmp_path) -> "Scene":
+    from mscap.scene import load_scene
+
+    data = tiny_scene()
+    data["multistart"] = {"k_min": 2, "k_max": 2, "starts_per_k": 1, "error_estimate": False}
+    path = tmp_path / "one.toml"
+    path.write_text(to_toml(data))
+    return load_scene(path)
+
+
+def test_a_start_stopped_midway_continues_where_it_stopped(tmp_path, monkeypatch):
+    """Issue 49 item 1: a job stopped while its start runs keeps the start's optimiser
+    state beside the results file; the rerun continues it and stores the run the
+    uninterrupted job stores (the same events, J to 1e-7), then deletes the state."""
+    import signal
+
+    from mpi4py import MPI
+
+    from mscap.service import checkpoints, multistart
+
+    scene = _one_start(tmp_path)
+    whole_file = tmp_path / "whole.h5"
+    multistart.run_multistart(scene, str(whole_file), MPI.COMM_SELF, max_iterations=4)
+    with read_store(whole_file) as store:
+        whole = read_run(store, "k2_s2000_lloyd")
+    assert list(whole.history["event"]).count("step") >= 3, whole.history["event"]
+
+    made = multistart.Progress
+
+    def stopping_at_step_2(*args, **kwargs):  # SLURM's SIGTERM arrives during the second step
+        progress = made(*args, **kwargs)
+        if progress.iteration == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return progress
+
+    monkeypatch.setattr(multistart, "Progress", stopping_at_step_2)
+    out, lines = tmp_path / "stopped.h5", []
+    first = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=4, progress=lines.append)
+    assert first["stopped"] and first["runs_done"] == 0
+    assert checkpoints.stored(out) == ["k2_s2000_lloyd"]
+    # the state at the top of the step that was stopped: one step lost, not the start
+    assert any("k2_s2000_lloyd: stopped at step 1 (level 0); its state is kept in" in line for line in lines), lines
+    monkeypatch.setattr(multistart, "Progress", made)
+    second = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=4, progress=lines.append)
+    assert second["runs_done"] == 1 and not second["stopped"]
+    assert any("1 start continues from its stored state: k2_s2000_lloyd (step 1)" in line for line in lines), lines
+    with read_store(out) as store:
+        resumed = read_run(store, "k2_s2000_lloyd")
+    assert list(resumed.history["event"]) == list(whole.history["event"])
+    np.testing.assert_allclose(resumed.history["J"], whole.history["J"], rtol=1e-7)
+    np.testing.assert_allclose(resumed.final_capacitance_pF, whole.final_capacitance_pF, rtol=1e-6)
+    assert checkpoints.stored(out) == [] and not checkpoints.directory(out).exists()
+
+
+def test_a_damaged_checkpoint_is_said_deleted_and_its_start_runs_afresh(tmp_path):
+    from mpi4py import MPI
+
+    from mscap.service import checkpoints, multistart
+
+    scene = _one_start(tmp_path)
+    out, lines = tmp_path / "r.h5", []
+    checkpoints.directory(out).mkdir()
+    (checkpoints.directory(out) / "k2_s2000_lloyd.h5").write_bytes(b"not HDF5 at all")
+    done = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=1, progress=lines.append)
+    assert done["runs_done"] == 1
+    said = [line for line in lines if "not a readable optimiser state" in line]
+    assert len(said) == 1 and said[0].endswith("deleted; k2_s2000_lloyd runs from its beginning"), lines
+    assert checkpoints.stored(out) == []
+
+
+def test_a_busy_start_sends_its_state_every_checkpoint_interval(tmp_path, monkeypatch):
+    """``checkpoint_minutes``: the master stores the state while the start runs (here at
+    every iteration) and deletes it once the run is stored."""
+    import dataclasses
+
+    from mpi4py import MPI
+
+    from mscap.service import checkpoints, multistart
+
+    scene = _one_start(tmp_path)
+    scene = dataclasses.replace(scene, multistart=dataclasses.replace(scene.multistart, checkpoint_minutes=1e-9))
+    saved, save = [], checkpoints.save
+    monkeypatch.setattr(checkpoints, "save", lambda results, rid, state: saved.append(
+        (rid, state.iteration, checkpoints.directory(results).exists())) or save(results, rid, state))
+    out = tmp_path / "r.h5"
+    multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=3)
+    assert [s[:2] for s in saved][:3] == [("k2_s2000_lloyd", 0), ("k2_s2000_lloyd", 1), ("k2_s2000_lloyd", 2)]
+    assert not checkpoints.directory(out).exists()  # the run is stored: its state is gone
