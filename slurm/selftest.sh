@@ -258,7 +258,8 @@ for entry in "${cancels[@]}"; do
     grep -q '^mscap_run: exit status 0,' "$log" \
         || fail "the cancelled job $first ($how) did not end with status 0: $(tail -n5 "$log")"
     say "3. scancel ($how): job $first $(state "$first") with $before runs stored; its log:"
-    grep -E '^mscap_run: (stop|exit|mpirun|srun)|^stopp|CANCELLED|Killed|Terminated' "$log" | sed 's/^/       /'
+    grep -E '^mscap_run: (stop|exit|mpirun|srun)|^stopp|CANCELLED|Killed|Terminated|: stopped at step' "$log" \
+        | sed 's/^/       /'
 done
 second=$(submit_resume "$how" "${how_args:-}")
 wait_job "$second" 300
@@ -269,6 +270,14 @@ todo=$(sed -n "s/.*$before runs already stored, \([0-9]*\) to do.*/\1/p" "$res/r
 [[ -n "$todo" ]] && (( todo >= 4 - before )) \
     || fail "job $second did not resume: $(grep 'to do' "$res/resume-$how-$second.out")"
 [[ "$(stored "$res/resume-$how.h5")" == 4 ]] || fail "after the resume $(stored "$res/resume-$how.h5") runs, not 4"
+# A start busy at the cancel kept its optimiser state (docs/hdf5.md "In-start checkpoints"):
+# the resubmission continues it and deletes the state once its run is stored.
+if grep -q ': stopped at step .*its state is kept' "$res/resume-$how-${cancelled[$how]}.out"; then
+    grep -q 'from \(its\|their\) stored state' "$res/resume-$how-$second.out" \
+        || fail "job $second did not continue the starts job ${cancelled[$how]} kept: $(grep 'to do' "$res/resume-$how-$second.out")"
+    [[ ! -e "$res/resume-$how.h5.checkpoints" ]] || fail "job $second left $res/resume-$how.h5.checkpoints behind"
+    grep 'stored state' "$res/resume-$how-$second.out" | sed 's/^/       /'
+fi
 say "3. resubmitted ($how): job $second resumed the other $(( 4 - before ))"
 
 # 4, continued.
