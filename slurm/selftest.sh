@@ -293,6 +293,7 @@ for entry in "${timelimit[@]}"; do
     n=$(stored "$res/timelimit-$how.h5")
     (( n >= 1 && n < total )) || fail "time-limited job $tl ($how) stored $n runs (expected 1 to $(( total - 1 )))"
     say "4. time limit ($how): job $tl $tl_state (ExitCode $(exit_code "$tl")), $n of $total runs stored; its log:"
-    grep -E '^mscap_run: (stop|exit|mpirun|srun)|^stopp|CANCELLED|Killed|Terminated' "$log" | sed 's/^/       /'
+    grep -E '^mscap_run: (stop|exit|mpirun|srun)|^stopp|CANCELLED|Killed|Terminated|: stopped at step' "$log" \
+        | sed 's/^/       /'
 done
 say "passed"
