@@ -21,7 +21,9 @@
 #      and resubmitting the same command completes it (resume);
 #   4. a job that reaches its --signal=B:TERM warning before the time limit stops cleanly:
 #      finished runs stored, "stopped" logged, state COMPLETED (exit 0) or TIMEOUT; once with
-#      mpirun inside the allocation, once with srun --mpi=pmix where srun has PMIx.
+#      mpirun inside the allocation, once with srun --mpi=pmix where srun has PMIx;
+#   5. a job submitted with --requeue and requeued while it runs (a preemption) stops
+#      cleanly, runs again and completes, continuing the starts it kept.
 # About 2.5 minutes on 2 cores.
 set -euo pipefail
 
@@ -169,7 +171,7 @@ exit_code() { scontrol show job "$1" 2>/dev/null | grep -o ' ExitCode=[0-9:]*' |
 wait_job() {   # wait_job ID SECONDS: until the job has ended
     local id="$1" t0=$SECONDS
     while (( SECONDS - t0 < $2 )); do
-        case "$(state "$id")" in PENDING|RUNNING|CONFIGURING|COMPLETING|"") sleep 1 ;; *) return 0 ;; esac
+        case "$(state "$id")" in PENDING|RUNNING|CONFIGURING|COMPLETING|REQUEUED|REQUEUE_FED|"") sleep 1 ;; *) return 0 ;; esac
     done
     fail "job $id still $(state "$id") after $2 s"
 }
@@ -279,6 +281,35 @@ if grep -q ': stopped at step .*its state is kept' "$res/resume-$how-${cancelled
     grep 'stored state' "$res/resume-$how-$second.out" | sed 's/^/       /'
 fi
 say "3. resubmitted ($how): job $second resumed the other $(( 4 - before ))"
+
+# 5. A requeued job (what a preemptible partition with PreemptMode=REQUEUE does to it):
+#    SLURM signals the job as scancel does, then starts the same script again, on the same
+#    OUT: the stop keeps the busy starts' states and the second run continues them.
+rq=$(sbatch --parsable --requeue --open-mode=append --ntasks=3 -O -o "$res/requeue-%j.out" \
+    --export=ALL,SCENE="$SCENE",OUT="$res/requeue.h5",K_MIN=3,K_MAX=3,SEEDS=0:3,MSCAP_ARGS="$short --starts-per-k 3" \
+    slurm/mscap_run.sbatch)
+log="$res/requeue-$rq.out"
+t0=$SECONDS
+until grep -q '^\[1/' "$log" 2>/dev/null; do
+    (( SECONDS - t0 < 300 )) || fail "job $rq (requeue) stored no run in 300 s"
+    sleep 0.5
+done
+scontrol requeue "$rq" || fail "scontrol requeue $rq failed"
+t0=$SECONDS
+until [[ "$(scontrol show job "$rq" 2>/dev/null | grep -o 'Restarts=[0-9]*' | cut -d= -f2)" -ge 1 ]]; do
+    (( SECONDS - t0 < 60 )) || fail "job $rq was not requeued: $(scontrol show job "$rq" | head -n3)"
+    sleep 0.5
+done
+wait_job "$rq" 600
+[[ "$(state "$rq")" == COMPLETED ]] || fail "requeued job $rq: $(state "$rq"); log: $(tail -n5 "$log")"
+[[ "$(stored "$res/requeue.h5")" == 3 ]] || fail "requeued job $rq stored $(stored "$res/requeue.h5") runs, not 3"
+grep -q '^stopping (SIG' "$log" || fail "requeued job $rq logged no 'stopping' line: $(tail -n5 "$log")"
+if grep -q ': stopped at step .*its state is kept' "$log"; then
+    grep -q 'from \(its\|their\) stored state' "$log" || fail "requeued job $rq did not continue its kept starts"
+fi
+[[ ! -e "$res/requeue.h5.checkpoints" ]] || fail "requeued job $rq left $res/requeue.h5.checkpoints behind"
+say "5. requeue: job $rq ran twice (Restarts=1), $(stored "$res/requeue.h5") runs stored; its log:"
+grep -E '^mscap_run: (stop|exit)|^stopp|: stopped at step|stored state|runs already stored' "$log" | sed 's/^/       /'
 
 # 4, continued.
 for entry in "${timelimit[@]}"; do
