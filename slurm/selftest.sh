@@ -175,6 +175,13 @@ wait_job() {   # wait_job ID SECONDS: until the job has ended
     done
     fail "job $id still $(state "$id") after $2 s"
 }
+first_run() {   # first_run LOG WHAT: until the job logging to LOG has stored a run
+    local t0=$SECONDS
+    until grep -q '^\[1/' "$1" 2>/dev/null; do
+        (( SECONDS - t0 < 300 )) || fail "$2 stored no run in 300 s"
+        sleep 0.5
+    done
+}
 stored() {   # the number of finished runs in an HDF5 file
     "$VENV/bin/python" - "$1" <<'PY'
 import sys, h5py
@@ -241,12 +248,7 @@ done
 for entry in "${cancels[@]}"; do
     read -r how how_args <<< "$entry"
     first=${cancelled[$how]}
-    log="$res/resume-$how-$first.out"
-    t0=$SECONDS
-    until grep -q '^\[1/' "$log" 2>/dev/null; do
-        (( SECONDS - t0 < 300 )) || fail "job $first ($how) stored no run in 300 s"
-        sleep 0.5
-    done
+    first_run "$res/resume-$how-$first.out" "job $first ($how)"
     scancel "$first"
 done
 for entry in "${cancels[@]}"; do
@@ -289,11 +291,7 @@ rq=$(sbatch --parsable --requeue --open-mode=append --ntasks=3 -O -o "$res/reque
     --export=ALL,SCENE="$SCENE",OUT="$res/requeue.h5",K_MIN=3,K_MAX=3,SEEDS=0:3,MSCAP_ARGS="$short --starts-per-k 3" \
     slurm/mscap_run.sbatch)
 log="$res/requeue-$rq.out"
-t0=$SECONDS
-until grep -q '^\[1/' "$log" 2>/dev/null; do
-    (( SECONDS - t0 < 300 )) || fail "job $rq (requeue) stored no run in 300 s"
-    sleep 0.5
-done
+first_run "$log" "job $rq (requeue)"
 scontrol requeue "$rq" || fail "scontrol requeue $rq failed"
 t0=$SECONDS
 until [[ "$(scontrol show job "$rq" 2>/dev/null | grep -o 'Restarts=[0-9]*' | cut -d= -f2)" -ge 1 ]]; do
