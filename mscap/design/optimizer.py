@@ -160,12 +160,26 @@ def resumed_design(scene, sheet, state: OptimizerState, designed=None) -> Design
     """The design of ``state`` rebuilt: ``sheet`` (the start's: its mesh sizes hold for the
     whole start) meshed from the state's layout with its control counts (``designed``: the
     design poses, default the scene's), then each control refinement of its cascade
-    replayed."""
+    replayed. A state whose arrays do not fit that design raises ``ValueError``."""
     design = build_design(scene, sheet=replace(sheet, layout=Layout(tuple(state.outlines))), count=state.counts,
                           poses=designed)
     for q in state.cascades:
+        _fits(state, "a refinement's q", q.shape, design.deformer.zeros().shape)
         design = design.refined(q)
+    _fits(state, "q", state.q.shape, design.deformer.zeros().shape)
+    _fits(state, "the equilibria", len(state.displacements), len(design.poses))
+    nodes = None if design.base.elastic is None else design.base.elastic.rest.shape
+    for u in state.displacements:
+        _fits(state, "an equilibrium", None if u is None else u.shape, nodes)
+    for s_, y_ in state.memory:
+        _fits(state, "the L-BFGS memory", (s_.size, y_.size), (state.q.size, state.q.size))
     return design
+
+
+def _fits(state, what: str, shape, expected) -> None:
+    """Refuse a state that is not of the design rebuilt from it (another scene's, damaged)."""
+    if shape != expected and shape is not None:
+        raise ValueError(f"{what} has shape {shape}; the design rebuilt from the state has {expected}")
 
 
 def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, checkpoint,

@@ -62,3 +62,18 @@ def test_a_start_stopped_anywhere_and_resumed_ends_where_it_would_have(scene, tm
         np.testing.assert_allclose(resumed.initial.capacitance_pF, whole.initial.capacitance_pF, rtol=0)
         checked += 1
     assert checked >= 2
+
+
+def test_a_state_of_another_design_is_refused(scene):
+    import dataclasses
+
+    states = []
+    optimize(build_design(scene), max_iterations=1, cascade_levels=0, keep=lambda state: states.append(state()))
+    state = states[-1]
+    resumed_design(scene, scene.sheet, state).close()  # its own fits
+    for change, message in ((dict(q=state.q[:-1]), "q has shape"),
+                            (dict(displacements=state.displacements[:-1]), "the equilibria has shape"),
+                            (dict(displacements=tuple(None if u is None else u[:-1] for u in state.displacements)),
+                             "an equilibrium has shape")):
+        with pytest.raises(ValueError, match=message):
+            resumed_design(scene, scene.sheet, dataclasses.replace(state, **change))
