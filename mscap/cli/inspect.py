@@ -34,6 +34,7 @@ def run(args) -> int:
                                       narrow_necks, narrow_necks_text, reading_choice, reading_plates, reading_text,
                                       resolution_text, runs_table, silent_plates, silent_plates_text, summary_json,
                                       table)
+    from mscap.service.checkpoints import kept, kept_text
     from mscap.service.store import finished_ids, read_run, read_store, run_summaries, store_selection
 
     with read_store(args.results) as store:
@@ -69,6 +70,7 @@ def run(args) -> int:
             document["silent_plates"] = [{"plate": j, "mean_pF": m, "std_pF": sd} for j, m, sd in silent]
             document["narrow_necks"] = [{"plate": j, "width_mm": w, "feature_mm": feature} for j, w in necks]
             document["cost"] = cost(store).as_dict()
+            document["kept_starts"] = [{"run": rid, "step": step} for rid, step in kept(args.results)]
             margin, error, noise = resolution
             document["chosen_margin"] = {"min_l1_pF": margin if math.isfinite(margin) else None,
                                          "bias_pF": error if math.isfinite(error) else None, "remesh_noise_pF": noise,
@@ -78,6 +80,8 @@ def run(args) -> int:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
                                    f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors, readings))
             print(cost_text(cost(store)))
+            if kept_text(args.results):
+                print(kept_text(args.results))
             line = resolution_text(selection.chosen_run, *resolution) if selection.chosen_which == "final" else ""
             if line:
                 print(line)

@@ -39,7 +39,8 @@ import h5py
 from mscap.design.state import STATE_FORMAT, OptimizerState, read_state, write_state
 from mscap.outputs import replace_file
 
-__all__ = ["Checkpoint", "Interrupted", "directory", "save", "load", "drop", "drop_all", "stored"]
+__all__ = ["Checkpoint", "Interrupted", "directory", "save", "load", "drop", "drop_all", "stored", "kept",
+           "kept_text"]
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +106,29 @@ def stored(results) -> list[str]:
     if not folder.is_dir() or folder.is_symlink():
         return []
     return sorted(p.stem for p in folder.glob("*.h5") if p.is_file())
+
+
+def kept(results) -> list[tuple[str, int | None]]:
+    """Each stored start's id and the step its state is at (``None``: unreadable), read
+    from the files' attributes alone (``mscap inspect``)."""
+    out = []
+    for run_id in stored(results):
+        try:
+            with h5py.File(_file(results, run_id), "r") as f:
+                out.append((run_id, int(f["state"].attrs["iteration"])))
+        except Exception:  # noqa: BLE001 — said as unreadable; the rerun deletes it
+            out.append((run_id, None))
+    return out
+
+
+def kept_text(results) -> str:
+    """One line on the starts a stopped job kept mid-way, ``""`` when none."""
+    starts = kept(results)
+    if not starts:
+        return ""
+    return (f"kept mid-way in {directory(results)} (a rerun of the same command continues them): "
+            + ", ".join(f"{rid} (step {step})" if step is not None else f"{rid} (unreadable: runs afresh)"
+                        for rid, step in starts))
 
 
 def drop(results, run_id: str) -> None:

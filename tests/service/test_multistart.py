@@ -614,7 +614,7 @@ def _one_start(tmp_path) -> "Scene":
     return load_scene(path)
 
 
-def test_a_start_stopped_midway_continues_where_it_stopped(tmp_path, monkeypatch):
+def test_a_start_stopped_midway_continues_where_it_stopped(tmp_path, monkeypatch, capsys):
     """Issue 49 item 1: a job stopped while its start runs keeps the start's optimiser
     state beside the results file; the rerun continues it and stores the run the
     uninterrupted job stores (the same events, J to 1e-7), then deletes the state."""
@@ -646,6 +646,11 @@ def test_a_start_stopped_midway_continues_where_it_stopped(tmp_path, monkeypatch
     assert checkpoints.stored(out) == ["k2_s2000_lloyd"]
     # the state at the top of the step that was stopped: one step lost, not the start
     assert any("k2_s2000_lloyd: stopped at step 1 (level 0); its state is kept in" in line for line in lines), lines
+    from mscap.cli import main
+
+    capsys.readouterr()
+    assert main(["inspect", str(out)]) == 0
+    assert "a rerun of the same command continues them): k2_s2000_lloyd (step 1)" in capsys.readouterr().out
     monkeypatch.setattr(multistart, "Progress", made)
     second = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=4, progress=lines.append)
     assert second["runs_done"] == 1 and not second["stopped"]
