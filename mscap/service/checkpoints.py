@@ -21,8 +21,8 @@ with 4 and 6 minute limits each stored 0 of 12 runs, and a resubmission would ag
   deleted, and its start runs from its beginning; so does one whose resume fails.
 - ``mscap run --force`` deletes the directory with the file's runs.
 
-The results file itself is unchanged (no schema change); ``mscap merge`` and ``inspect``
-ignore the checkpoints. With ``[fabrication] route_during_optimisation`` no state is kept
+The results file itself is unchanged (no schema change); ``mscap merge`` ignores the
+checkpoints, ``mscap inspect`` lists them (:func:`kept_text`). With ``[fabrication] route_during_optimisation`` no state is kept
 (the route is not part of it).
 """
 
