@@ -5,6 +5,7 @@
 #   slurm/selftest.sh --require  fail instead of skipping (.ci/run)
 #   slurm/selftest.sh --keep     keep the cluster's directory (config, logs, results)
 #   slurm/selftest.sh --install  only install what it needs and exit (.ci/run, before make test)
+#   slurm/selftest.sh --requeue  also check 5. below (about 2.5 minutes more: not in the suite)
 #
 # Needs root on Debian with slurmctld, slurmd, slurm-client, munge and libpmix-dev (for srun
 # --mpi=pmix) installed: the self-test itself installs nothing (the test suite runs it), it
@@ -22,19 +23,21 @@
 #   4. a job that reaches its --signal=B:TERM warning before the time limit stops cleanly:
 #      finished runs stored, "stopped" logged, state COMPLETED (exit 0) or TIMEOUT; once with
 #      mpirun inside the allocation, once with srun --mpi=pmix where srun has PMIx;
-#   5. a job submitted with --requeue and requeued while it runs (a preemption) stops
-#      cleanly, runs again and completes, continuing the starts it kept.
+#   5. with --requeue: a job submitted with --requeue and requeued while it runs (a
+#      preemption) stops cleanly, runs again and completes, continuing the starts it kept.
 # About 2.5 minutes on 2 cores.
 set -euo pipefail
 
 REQUIRE=0
 KEEP=0
 INSTALL=0
+REQUEUE=0
 for a in "$@"; do
     case "$a" in
         --require) REQUIRE=1 ;;
         --keep) KEEP=1 ;;
         --install) INSTALL=1 ;;
+        --requeue) REQUEUE=1 ;;
         -h|--help) sed -n '2,/^set -euo/p' "${BASH_SOURCE[0]}" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
         *) echo "selftest: unknown argument $a" >&2; exit 2 ;;
     esac
@@ -287,27 +290,29 @@ say "3. resubmitted ($how): job $second resumed the other $(( 4 - before ))"
 # 5. A requeued job (what a preemptible partition with PreemptMode=REQUEUE does to it):
 #    SLURM signals the job as scancel does, then starts the same script again, on the same
 #    OUT: the stop keeps the busy starts' states and the second run continues them.
-rq=$(sbatch --parsable --requeue --open-mode=append --ntasks=3 -O -o "$res/requeue-%j.out" \
-    --export=ALL,SCENE="$SCENE",OUT="$res/requeue.h5",K_MIN=3,K_MAX=3,SEEDS=0:3,MSCAP_ARGS="$short --starts-per-k 3" \
-    slurm/mscap_run.sbatch)
-log="$res/requeue-$rq.out"
-first_run "$log" "job $rq (requeue)"
-scontrol requeue "$rq" || fail "scontrol requeue $rq failed"
-t0=$SECONDS
-until [[ "$(scontrol show job "$rq" 2>/dev/null | grep -o 'Restarts=[0-9]*' | cut -d= -f2)" -ge 1 ]]; do
-    (( SECONDS - t0 < 60 )) || fail "job $rq was not requeued: $(scontrol show job "$rq" | head -n3)"
-    sleep 0.5
-done
-wait_job "$rq" 600
-[[ "$(state "$rq")" == COMPLETED ]] || fail "requeued job $rq: $(state "$rq"); log: $(tail -n5 "$log")"
-[[ "$(stored "$res/requeue.h5")" == 3 ]] || fail "requeued job $rq stored $(stored "$res/requeue.h5") runs, not 3"
-grep -q '^stopping (SIG' "$log" || fail "requeued job $rq logged no 'stopping' line: $(tail -n5 "$log")"
-if grep -q ': stopped at step .*its state is kept' "$log"; then
-    grep -q 'from \(its\|their\) stored state' "$log" || fail "requeued job $rq did not continue its kept starts"
+if (( REQUEUE )); then
+    rq=$(sbatch --parsable --requeue --open-mode=append --ntasks=3 -O -o "$res/requeue-%j.out" \
+        --export=ALL,SCENE="$SCENE",OUT="$res/requeue.h5",K_MIN=3,K_MAX=3,SEEDS=0:3,MSCAP_ARGS="$short --starts-per-k 3" \
+        slurm/mscap_run.sbatch)
+    log="$res/requeue-$rq.out"
+    first_run "$log" "job $rq (requeue)"
+    scontrol requeue "$rq" || fail "scontrol requeue $rq failed"
+    t0=$SECONDS
+    until [[ "$(scontrol show job "$rq" 2>/dev/null | grep -o 'Restarts=[0-9]*' | cut -d= -f2)" -ge 1 ]]; do
+        (( SECONDS - t0 < 60 )) || fail "job $rq was not requeued: $(scontrol show job "$rq" | head -n3)"
+        sleep 0.5
+    done
+    wait_job "$rq" 600
+    [[ "$(state "$rq")" == COMPLETED ]] || fail "requeued job $rq: $(state "$rq"); log: $(tail -n5 "$log")"
+    [[ "$(stored "$res/requeue.h5")" == 3 ]] || fail "requeued job $rq stored $(stored "$res/requeue.h5") runs, not 3"
+    grep -q '^stopping (SIG' "$log" || fail "requeued job $rq logged no 'stopping' line: $(tail -n5 "$log")"
+    if grep -q ': stopped at step .*its state is kept' "$log"; then
+        grep -q 'from \(its\|their\) stored state' "$log" || fail "requeued job $rq did not continue its kept starts"
+    fi
+    [[ ! -e "$res/requeue.h5.checkpoints" ]] || fail "requeued job $rq left $res/requeue.h5.checkpoints behind"
+    say "5. requeue: job $rq ran twice (Restarts=1), $(stored "$res/requeue.h5") runs stored; its log:"
+    grep -E '^mscap_run: (stop|exit)|^stopp|: stopped at step|stored state|runs already stored' "$log" | sed 's/^/       /'
 fi
-[[ ! -e "$res/requeue.h5.checkpoints" ]] || fail "requeued job $rq left $res/requeue.h5.checkpoints behind"
-say "5. requeue: job $rq ran twice (Restarts=1), $(stored "$res/requeue.h5") runs stored; its log:"
-grep -E '^mscap_run: (stop|exit)|^stopp|: stopped at step|stored state|runs already stored' "$log" | sed 's/^/       /'
 
 # 4, continued.
 for entry in "${timelimit[@]}"; do
