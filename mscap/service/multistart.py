@@ -49,6 +49,7 @@ from typing import TYPE_CHECKING, Callable
 
 from mscap.fem.simulate import release_freed_memory
 from mscap.mesh.budget import check_meshes
+from mscap.errors import MscapError
 from mscap.service import checkpoints
 from mscap.service.accuracy import Equilibria, estimate_error, finer
 from mscap.design.readback import read_back_estimate
@@ -411,7 +412,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
         def keep(state: checkpoints.Checkpoint | checkpoints.Interrupted) -> str:
             try:
                 checkpoints.save(path, state.id, state.state)
-            except (OSError, ValueError) as exc:  # a start that cannot be kept runs again from its beginning
+            except (OSError, ValueError, MscapError) as exc:  # not kept: a rerun runs it from its beginning
                 return f"not kept ({exc})"
             return f"kept in {checkpoints.directory(path)}"
 
@@ -420,7 +421,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
             if isinstance(rec, checkpoints.Interrupted):  # the job is stopping: a rerun continues it
                 where = keep(rec)
                 say(f"{rec.id}: stopped at step {rec.state.iteration} (level {rec.state.level}); its state is "
-                    f"{where}: a rerun continues it")
+                    f"{where}: a rerun " + ("runs it from its beginning" if where.startswith("not") else "continues it"))
                 return
             # Stored and fsync-ed, then /selection brought up to date, then announced.
             write_run(store, rec)

@@ -697,3 +697,35 @@ def test_a_busy_start_sends_its_state_every_checkpoint_interval(tmp_path, monkey
     multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=3)
     assert [s[:2] for s in saved][:3] == [("k2_s2000_lloyd", 0), ("k2_s2000_lloyd", 1), ("k2_s2000_lloyd", 2)]
     assert not checkpoints.directory(out).exists()  # the run is stored: its state is gone
+
+
+def test_a_state_that_cannot_be_kept_is_said_and_the_job_ends_normally(tmp_path, monkeypatch):
+    """A full disk (or any write error) at a stop: the start is said not kept, the job
+    ends as a clean stop, and the rerun runs that start from its beginning."""
+    import signal
+
+    from mpi4py import MPI
+
+    from mscap.errors import MscapError
+    from mscap.service import checkpoints, multistart
+
+    def full(*args):
+        raise MscapError("r.h5.checkpoints/k2_s2000_lloyd.h5: cannot write (No space left on device)")
+
+    monkeypatch.setattr(checkpoints, "save", full)
+    made = multistart.Progress
+
+    def stopping(*args, **kwargs):
+        progress = made(*args, **kwargs)
+        if progress.iteration == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return progress
+
+    monkeypatch.setattr(multistart, "Progress", stopping)
+    out, lines = tmp_path / "r.h5", []
+    first = multistart.run_multistart(_one_start(tmp_path), str(out), MPI.COMM_SELF, max_iterations=4,
+                                      progress=lines.append)
+    assert first["stopped"] and first["runs_done"] == 0
+    said = [line for line in lines if "k2_s2000_lloyd: stopped at step" in line]
+    assert len(said) == 1 and "not kept (" in said[0] and said[0].endswith("a rerun runs it from its beginning")
+    assert checkpoints.stored(out) == []
