@@ -604,7 +604,7 @@ def test_a_rank_done_early_waits_for_the_others_without_a_core(tmp_path):
     assert cpu < 0.2 * wall, rows  # polling at full speed would spend about the whole wait
 
 
-def _one_start(tmp_path) -> "Scene":
+def _one_start(tmp_path):
     from mscap.scene import load_scene
 
     data = tiny_scene()
