@@ -48,7 +48,7 @@ import numpy as np
 from mscap.design.feasibility import feasible_step
 from mscap.design.history import Record
 from mscap.design.pipeline import Design, DesignError, Evaluation, build_design
-from mscap.design.remesh import min_angle, needs_remesh, remesh, size_ratio
+from mscap.design.remesh import control_counts, min_angle, needs_remesh, remesh, size_ratio
 from mscap.design.revival import revival
 from mscap.design.state import OptimizerState
 from mscap.errors import GeometryError, InvertedMeshError, MeshError
@@ -263,7 +263,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
 
     def remesh_here(evaluations=1):  # evaluations: the rejected trials that led here, and this one
         nonlocal design, e, g, fresh, step_length, lineage
-        counts = np.bincount(design.deformer.control_outline, minlength=len(design.sheet.layout.outlines))
+        counts = control_counts(design)
         new, warm = remesh(design, e)
         lineage = (new.sheet, counts, [])
         e.release()
@@ -309,7 +309,7 @@ def _optimize(design: Design, q0, progress, max_iterations, cascade_levels, chec
             say(f"silent plate(s) {plates} would raise J {e.J:+.6e} -> {trial.J:+.6e}; kept where they are")
             return False
         say(f"revived silent plate(s) {plates}: J {e.J:+.6e} -> {trial.J:+.6e}")
-        lineage = (new.sheet, np.bincount(design.deformer.control_outline, minlength=len(outlines)), [])
+        lineage = (new.sheet, control_counts(design), [])
         e.release()
         design, e = new, trial
         reroute("revival")

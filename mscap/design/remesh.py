@@ -16,7 +16,8 @@ from mscap.geometry.polygons import turning
 from mscap.mesh.shape import neighbour_size_ratios, triangle_angles_deg
 from mscap.fem.transfer import interpolation_matrix
 
-__all__ = ["remesh", "resample_outline", "resampled_layout", "needs_remesh", "min_angle", "size_ratio"]
+__all__ = ["remesh", "resample_outline", "resampled_layout", "needs_remesh", "min_angle", "size_ratio",
+           "control_counts"]
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,11 @@ def resampled_layout(outlines, spacing_mm: float, finest_mm: float, scene) -> La
                 raise
 
 
+def control_counts(design: Design) -> np.ndarray:
+    """The number of controls on each outline of ``design`` (what a remesh keeps)."""
+    return np.bincount(design.deformer.control_outline, minlength=len(design.sheet.layout.outlines))
+
+
 def remesh(design: Design, evaluation: Evaluation, outlines=None) -> tuple[Design, list]:
     """A new design meshed from the outlines at ``evaluation.q`` (or from ``outlines``: a
     revived plate's, :mod:`mscap.design.revival`), resampled at the scene's outline edge
@@ -90,8 +96,7 @@ def remesh(design: Design, evaluation: Evaluation, outlines=None) -> tuple[Desig
     spacing = edge * max(1, int(np.floor(half / edge + 1e-9)))
     outlines = design.deformer.outlines(evaluation.q) if outlines is None else outlines
     layout = resampled_layout(outlines, spacing, edge, scene)
-    counts = np.bincount(design.deformer.control_outline, minlength=layout.k)
-    new = replace(build_design(scene, sheet=replace(design.sheet, layout=layout), count=counts,
+    new = replace(build_design(scene, sheet=replace(design.sheet, layout=layout), count=control_counts(design),
                                objective=design.objective, poses=design.designed),
                   wiring=design.wiring)  # re-routed by the optimiser
     warm = [None] * len(design.poses)
