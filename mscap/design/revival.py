@@ -125,16 +125,12 @@ def revived_outlines(smap, outlines, capacitance_pF: np.ndarray, rows, silent, s
         for j in silent:
             size = sides[j] * 0.9**step
             residual = novelty(smap.signature, np.array(read).T.reshape(len(rows), -1))
-            gain = np.linalg.norm(footprint_means(smap.points, smap.area, residual, size), axis=1)
             others = [moved.get(i, o) for i, o in enumerate(outlines) if i != j]
-            for c in np.argsort(-gain, kind="stable"):
-                if not gain[c] > floor:
-                    break
-                square = geometry.square(smap.points[c], size)
-                if square_fits(square, others, sheet, gap):
-                    moved[j], scores[j] = square, float(gain[c])
-                    read.append(footprint_means(smap.points, smap.area, smap.signature, size, smap.points[c])[0])
-                    break
+            site = _best_site(smap, residual, size, others, sheet, gap, floor)
+            if site is not None:
+                c, scores[j] = site
+                moved[j] = geometry.square(smap.points[c], size)
+                read.append(footprint_means(smap.points, smap.area, smap.signature, size, smap.points[c])[0])
         if len(moved) > best_count:
             best, best_count = (moved, scores), len(moved)
         if len(moved) == len(silent):
@@ -145,6 +141,20 @@ def revived_outlines(smap, outlines, capacitance_pF: np.ndarray, rows, silent, s
     moved, scores = best
     plates = tuple(j for j in silent if j in moved)
     return Revival(plates, tuple(moved[j] for j in plates), tuple(scores[j] for j in plates))
+
+
+def _best_site(smap, residual: np.ndarray, size: float, others, sheet: np.ndarray, gap: float,
+               floor: float) -> tuple[int, float] | None:
+    """The map point where a square of side ``size`` adds the most novelty (the norm of the
+    mean ``residual`` it covers) above ``floor`` and fits beside ``others``: its index and
+    that novelty, or ``None``."""
+    gain = np.linalg.norm(footprint_means(smap.points, smap.area, residual, size), axis=1)
+    for c in np.argsort(-gain, kind="stable"):
+        if not gain[c] > floor:
+            return None
+        if square_fits(geometry.square(smap.points[c], size), others, sheet, gap):
+            return int(c), float(gain[c])
+    return None
 
 
 def revival(design, evaluation) -> tuple[Revival, list] | None:
