@@ -80,8 +80,9 @@ def run(args) -> int:
             print(table(selection, f"{args.results}: scene {store.attrs['scene_name']} "
                                    f"(sha256 {store.attrs['scene_sha256'][:12]}…)", errors, readings))
             print(cost_text(cost(store)))
-            if kept_text(args.results):
-                print(kept_text(args.results))
+            kept_line = kept_text(args.results)
+            if kept_line:
+                print(kept_line)
             line = resolution_text(selection.chosen_run, *resolution) if selection.chosen_which == "final" else ""
             if line:
                 print(line)
