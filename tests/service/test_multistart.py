@@ -614,12 +614,29 @@ def _one_start(tmp_path):
     return load_scene(path)
 
 
+def _sigterm_at_step(monkeypatch, step: int):
+    """SIGTERM to this process while the start reports its step ``step`` (the master then
+    abandons it at that question); returns the real ``Progress``, to put back."""
+    import signal
+
+    from mscap.service import multistart
+
+    made = multistart.Progress
+
+    def stopping(*args, **kwargs):
+        progress = made(*args, **kwargs)
+        if progress.iteration == step:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return progress
+
+    monkeypatch.setattr(multistart, "Progress", stopping)
+    return made
+
+
 def test_a_start_stopped_midway_continues_where_it_stopped(tmp_path, monkeypatch, capsys):
     """Issue 49 item 1: a job stopped while its start runs keeps the start's optimiser
     state beside the results file; the rerun continues it and stores the run the
     uninterrupted job stores (the same events, J to 1e-7), then deletes the state."""
-    import signal
-
     from mpi4py import MPI
 
     from mscap.service import checkpoints, multistart
@@ -631,15 +648,7 @@ def test_a_start_stopped_midway_continues_where_it_stopped(tmp_path, monkeypatch
         whole = read_run(store, "k2_s2000_lloyd")
     assert list(whole.history["event"]).count("step") >= 3, whole.history["event"]
 
-    made = multistart.Progress
-
-    def stopping_at_step_2(*args, **kwargs):  # SLURM's SIGTERM arrives during the second step
-        progress = made(*args, **kwargs)
-        if progress.iteration == 2:
-            os.kill(os.getpid(), signal.SIGTERM)
-        return progress
-
-    monkeypatch.setattr(multistart, "Progress", stopping_at_step_2)
+    made = _sigterm_at_step(monkeypatch, 2)  # SLURM's SIGTERM arrives during the second step
     out, lines = tmp_path / "stopped.h5", []
     first = multistart.run_multistart(scene, str(out), MPI.COMM_SELF, max_iterations=4, progress=lines.append)
     assert first["stopped"] and first["runs_done"] == 0
@@ -702,8 +711,6 @@ def test_a_busy_start_sends_its_state_every_checkpoint_interval(tmp_path, monkey
 def test_a_state_that_cannot_be_kept_is_said_and_the_job_ends_normally(tmp_path, monkeypatch):
     """A full disk (or any write error) at a stop: the start is said not kept, the job
     ends as a clean stop, and the rerun runs that start from its beginning."""
-    import signal
-
     from mpi4py import MPI
 
     from mscap.errors import MscapError
@@ -713,15 +720,7 @@ def test_a_state_that_cannot_be_kept_is_said_and_the_job_ends_normally(tmp_path,
         raise MscapError("r.h5.checkpoints/k2_s2000_lloyd.h5: cannot write (No space left on device)")
 
     monkeypatch.setattr(checkpoints, "save", full)
-    made = multistart.Progress
-
-    def stopping(*args, **kwargs):
-        progress = made(*args, **kwargs)
-        if progress.iteration == 2:
-            os.kill(os.getpid(), signal.SIGTERM)
-        return progress
-
-    monkeypatch.setattr(multistart, "Progress", stopping)
+    _sigterm_at_step(monkeypatch, 2)
     out, lines = tmp_path / "r.h5", []
     first = multistart.run_multistart(_one_start(tmp_path), str(out), MPI.COMM_SELF, max_iterations=4,
                                       progress=lines.append)
