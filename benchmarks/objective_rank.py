@@ -21,14 +21,17 @@ the scene's own layout, and reports from the file's ``/calibration``:
 
 ::
 
-    .venv/bin/python benchmarks/objective_rank.py jobs/pneumatic_quick.toml [--widen 0.25 [--axes AXIS ...]]
+    .venv/bin/python benchmarks/objective_rank.py jobs/pneumatic_quick.toml [--widen 0.25 [--axes AXIS ...] [--with-sequence]]
         [--multistart-seed 1 --lloyd-fraction 0.5 --starts-per-k 3] [--calibrate-best N] [--scene-start]
         [--distance readback] [--no-scene-start --sensitivity-fraction 0.5] [--no-revival] [--tag shipped]
         [--out out/objective_rank]
 
 ``--widen F`` widens every training axis of the scene's ``[calibration.training]`` by F of
 its span (upwards from 0, else about its centre) (the change of issue 45: +25 % made the
-bound's choice on pneumatic calibrate worse than its own initial layout). A plain
+bound's choice on pneumatic calibrate worse than its own initial layout); with
+``--with-sequence`` the ``[calibration.sequence]`` waypoints move with the ranges (a user who
+narrows the family narrows the poses to read too; without it, pneumatic narrowed by 25 %
+reads a sequence wholly outside its training ranges). A plain
 `mpirun -n 3` command, timed. Appends one row per design to ``docs/objective_rank.csv`` and
 prints the summary line.
 """
@@ -75,6 +78,32 @@ def widened(text: str, fraction: float, axes=()) -> str:
     return head + sep + body + nxt + tail
 
 
+def sequence_moved(text: str, fraction: float, axes=()) -> str:
+    """The scene text with every ``[calibration.sequence]`` waypoint moved by the affine map
+    that :func:`widened` applies to its training axis (a narrowed family whose sequence is
+    narrowed with it: each waypoint keeps its place relative to the training range, the
+    ones outside it stay outside)."""
+    ranges = {}
+    for source, key in ((text, "old"), (widened(text, fraction, axes), "new")):
+        body = source.partition("[calibration.training]\n")[2].partition("\n[")[0]
+        for m in re.finditer(r"^(\w+) = \[\s*([-\d.]+),\s*([-\d.]+),\s*(\d+)\]", body, flags=re.M):
+            ranges.setdefault(m[1], {})[key] = (float(m[2]), float(m[3]))
+    head, sep, rest = text.partition("[calibration.sequence]\n")
+    if not sep:
+        sys.exit("the scene has no [calibration.sequence] table")
+    body, nxt, tail = rest.partition("\n[")
+
+    def move(match: re.Match) -> str:
+        if match[1] not in ranges or (axes and match[1] not in axes):
+            return match[0]
+        (lo, hi), (lo2, hi2) = ranges[match[1]]["old"], ranges[match[1]]["new"]
+        values = [lo2 + (float(v) - lo) * (hi2 - lo2) / (hi - lo) for v in match[2].split(",")]
+        return f"{match[1]} = [" + ", ".join(f"{v:.6g}" for v in values) + "]"
+
+    body = re.sub(r"^(\w+)\s*=\s*\[([-\d.,\s]+)\]", move, body, flags=re.M)
+    return head + sep + body + nxt + tail
+
+
 def with_keys(text: str, table: str, **values) -> str:
     """The scene text with keys of ``[table]`` set (added after the table's header)."""
     values = {key: value for key, value in values.items() if value is not None}
@@ -105,6 +134,8 @@ def main() -> None:
     parser.add_argument("scene", help="a calibrated scene file (designed for read-back)")
     parser.add_argument("--widen", type=float, default=0.0, help="widen the training axes by this fraction")
     parser.add_argument("--axes", nargs="+", default=(), help="only these training axes (not a periodic one)")
+    parser.add_argument("--with-sequence", action="store_true",
+                        help="move the [calibration.sequence] waypoints with the training ranges")
     parser.add_argument("--multistart-seed", type=int)
     parser.add_argument("--lloyd-fraction", type=float)
     parser.add_argument("--starts-per-k", type=int)
@@ -128,6 +159,8 @@ def main() -> None:
     source = Path(args.scene)
     name = f"{source.stem}_{args.tag}"
     text = source.read_text()
+    if args.widen and args.with_sequence:
+        text = sequence_moved(text, args.widen, args.axes)
     if args.widen:
         text = widened(text, args.widen, args.axes)
     if args.distance:
