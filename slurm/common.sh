@@ -2,7 +2,8 @@
 # the environment of a job, the choice of launcher, and a launch that stops cleanly.
 #
 #   mscap_environment NAME     activate the venv, one thread per rank, OpenMPI as root
-#   mscap_launcher NAME        sets the array `launcher`: srun or mpirun (LAUNCHER, below)
+#   mscap_launcher NAME        sets `ranks` (RANKS, below) and the array `launcher`: srun or
+#                              mpirun (LAUNCHER, below); says on stdout what the job has and uses
 #   mscap_check_room NAME [DIR...]  refuses (status 2) a file-size limit or a disk too small for MPI
 #   mscap_launch NAME ARGS...  runs `launcher mscap ARGS...`, passes a stop on, returns its status
 #
@@ -10,7 +11,15 @@
 #   auto    (default) inside a SLURM job: srun if one probe task shows srun can start an MPI
 #           program here, else mpirun inside the allocation (with the reason); outside a job: mpirun
 #   srun    srun with SRUN_ARGS (e.g. --mpi=pmix), no probe
-#   mpirun  mpirun -n $SLURM_NTASKS (OpenMPI reads the allocation); outside SLURM -n $NTASKS
+#   mpirun  mpirun -n $ranks (OpenMPI reads the allocation); outside SLURM -n $NTASKS
+#
+# RANKS (environment): how many MPI ranks the job starts.
+#   auto    (default) inside a job: a worker on every CPU SLURM gave the job, plus the master,
+#           which idles (< 1 % of a core) and shares one; never fewer than the job's tasks (a
+#           job asking `--ntasks=3 -O` on one CPU gets its 3). Outside a job: NTASKS (1).
+#   tasks   exactly the job's tasks, SLURM_NTASKS
+#   N       N ranks (2 at least: the master and a worker)
+# More ranks than tasks start with `srun --overcommit` or `mpirun --oversubscribe`.
 #
 # Stopping (SLURM's `--signal=B:TERM@120` before the time limit, or Ctrl-C by hand) asks
 # mscap's master, and only it, to stop: it stores what has finished and ends the job with
@@ -77,8 +86,65 @@ srun_can_start_mpi() {
     return 1
 }
 
+# The CPUs of this job's allocation: SLURM_JOB_CPUS_PER_NODE, e.g. "4(x2),2" -> 10 (0 if unset).
+allocation_cpus() {
+    local part total=0 parts=()
+    IFS=, read -r -a parts <<< "${SLURM_JOB_CPUS_PER_NODE:-}"
+    for part in ${parts[@]+"${parts[@]}"}; do
+        if [[ "$part" =~ ^([0-9]+)\(x([0-9]+)\)$ ]]; then
+            total=$(( total + BASH_REMATCH[1] * BASH_REMATCH[2] ))
+        elif [[ "$part" =~ ^[0-9]+$ ]]; then
+            total=$(( total + part ))
+        else
+            echo 0; return
+        fi
+    done
+    echo "$total"
+}
+
+# Sets `ranks` from RANKS (above) and says on stdout what the job was given and what it runs.
+mscap_ranks() {
+    local name="$1" mode="${RANKS:-auto}" tasks="${SLURM_NTASKS:-}" cpus how
+    if [[ -z "${SLURM_JOB_ID:-}" || -z "$tasks" ]]; then
+        case "$mode" in
+            auto|tasks) ranks="${NTASKS:-1}"; how="NTASKS" ;;
+            *) ranks="$mode"; how="RANKS" ;;
+        esac
+        [[ "$ranks" =~ ^[1-9][0-9]*$ ]] || { echo "$name: $how must be a positive number, not '$ranks'" >&2; exit 2; }
+        echo "$name: not in a SLURM job: $ranks rank(s) ($how)"
+        return 0
+    fi
+    cpus="$(allocation_cpus)"
+    case "$mode" in
+        auto)
+            ranks="$tasks"
+            (( cpus + 1 > ranks )) && ranks=$(( cpus + 1 ))
+            how="RANKS=auto: a worker per CPU, the master shares one"
+            (( ranks == tasks && cpus + 1 < tasks )) && how="RANKS=auto: the job's $tasks tasks on $cpus CPU(s)"
+            ;;
+        tasks) ranks="$tasks"; how="RANKS=tasks: the job's tasks" ;;
+        *)
+            [[ "$mode" =~ ^[0-9]+$ ]] && (( mode >= 2 )) \
+                || { echo "$name: RANKS must be auto, tasks or a number of ranks of at least 2, not '$mode'" >&2; exit 2; }
+            ranks="$mode"; how="RANKS=$mode"
+            ;;
+    esac
+    local limit="" partition="${SLURM_JOB_PARTITION:-?}"
+    if command -v squeue >/dev/null 2>&1; then
+        limit="$(squeue -h -j "$SLURM_JOB_ID" -o %l 2>/dev/null | head -n1)" || limit=""
+    fi
+    echo "$name: job $SLURM_JOB_ID (partition $partition, time limit ${limit:-unknown}) has $tasks task(s)," \
+         "$cpus CPU(s) on ${SLURM_NNODES:-1} node(s) (${SLURM_JOB_NODELIST:-?}): $ranks ranks," \
+         "the master and $(( ranks - 1 )) worker(s) ($how)"
+    if (( ranks < 2 )); then
+        echo "$name: 1 rank has no worker: ask for --ntasks=2 at least, or set RANKS" >&2
+        exit 2
+    fi
+}
+
 mscap_launcher() {
-    local name="$1" mode="${LAUNCHER:-auto}" ntasks="${SLURM_NTASKS:-${NTASKS:-1}}" why
+    local name="$1" mode="${LAUNCHER:-auto}" why
+    mscap_ranks "$name"
     srun_extra=()
     if [[ -n "${SRUN_ARGS:-}" ]]; then
         read -r -a srun_extra <<< "$SRUN_ARGS"
@@ -91,22 +157,35 @@ mscap_launcher() {
         auto)
             if (( in_job )) && why="$(srun_can_start_mpi)"; then
                 mode=srun
+                why="LAUNCHER=auto: a probe task started MPI under srun"
+            elif (( in_job )); then
+                why="LAUNCHER=auto: $why; using mpirun inside the allocation"
+                mode=mpirun
             else
-                (( in_job )) && echo "$name: $why; using mpirun inside the allocation" >&2
+                why="LAUNCHER=auto: not in a SLURM job"
                 mode=mpirun
             fi
             ;;
         srun)
             (( in_job )) || { echo "$name: LAUNCHER=srun needs a SLURM job and srun" >&2; exit 2; }
+            why="LAUNCHER=srun"
             ;;
-        mpirun) ;;
+        mpirun) why="LAUNCHER=mpirun" ;;
         *) echo "$name: LAUNCHER must be auto, srun or mpirun, not '$mode'" >&2; exit 2 ;;
     esac
+    local tasks="${SLURM_NTASKS:-$ranks}"
     if [[ "$mode" == srun ]]; then
         launcher=(srun "${srun_extra[@]}")
+        if (( ranks > tasks )); then
+            launcher+=(--ntasks="$ranks" --overcommit)
+        elif (( ranks < tasks )); then
+            launcher+=(--ntasks="$ranks")
+        fi
     else
-        launcher=(mpirun -n "$ntasks")
+        launcher=(mpirun -n "$ranks")
+        (( ranks > tasks )) && launcher+=(--oversubscribe)
     fi
+    echo "$name: launcher ${launcher[*]} ($why)"
 }
 
 # Ask mscap's master to stop (see the top of this file).

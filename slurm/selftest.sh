@@ -16,7 +16,8 @@
 # stops the daemons by PID at the end, whatever happens.
 # On jobs/quick.toml (with P1 elastic elements) and short runs, it checks four things a
 # cluster user relies on:
-#   1. a single job (slurm/mscap_run.sbatch) completes and stores its runs;
+#   1. a single job (slurm/mscap_run.sbatch) completes and stores its runs, and says on
+#      stdout the tasks and CPUs it was given, the ranks it runs and the launcher it chose;
 #   2. a job array with its dependent merge (slurm/submit_array.sh) merges every part;
 #   3. `scancel` stops a job cleanly under each launcher ("stopping" logged, exit status 0),
 #      and resubmitting the same command completes it (resume);
@@ -222,7 +223,11 @@ one=$(sbatch --parsable --ntasks=3 -O -o "$res/single-%j.out" \
 wait_job "$one" 300
 [[ "$(state "$one")" == COMPLETED ]] || fail "single job $one: $(state "$one"); log: $(tail -n5 "$res/single-$one.out")"
 [[ "$(stored "$res/single.h5")" == 2 ]] || fail "single job $one stored $(stored "$res/single.h5") runs, not 2"
-say "1. single job $one: COMPLETED, 2 runs stored"
+sized="$(grep -m1 ' ranks, the master and ' "$res/single-$one.out" || true)"
+[[ "$sized" == *"has 3 task(s), 1 CPU(s) on 1 node(s)"*": 3 ranks, the master and 2 worker(s)"* ]] \
+    || fail "single job $one did not say its size (3 tasks on 1 CPU: 3 ranks): '$sized'"
+grep -q '^mscap_run: launcher ' "$res/single-$one.out" || fail "single job $one did not say its launcher on stdout"
+say "1. single job $one: COMPLETED, 2 runs stored; it said its size and launcher ($(grep -m1 '^mscap_run: launcher ' "$res/single-$one.out" | cut -d' ' -f3-))"
 
 # 2. An array (one task per seed, k = 2) and its merge.
 out=$(slurm/submit_array.sh --split seeds --seed-chunk 1 --seeds-total 2 --k-min 2 --k-max 2 \

@@ -265,8 +265,54 @@ def test_auto_launcher_uses_mpirun_when_srun_lacks_pmi(sandbox):
     proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="4")
     (call,) = sandbox.launches
     assert call[:4] == ["mpirun", "-n", "4", "mscap"]
-    assert "not built with SLURM's PMI support" in proc.stderr and "SRUN_ARGS=--mpi=pmix" in proc.stderr
-    assert "using mpirun inside the allocation" in proc.stderr
+    # The choice and its reason are on stdout (the job's output), not only among the errors.
+    assert "not built with SLURM's PMI support" in proc.stdout and "SRUN_ARGS=--mpi=pmix" in proc.stdout
+    assert "launcher mpirun -n 4 (LAUNCHER=auto: srun cannot" in proc.stdout
+    assert "using mpirun inside the allocation" in proc.stdout
+
+
+@pytest.mark.parametrize("cpus, tasks, ranks, srun_extra, mpirun_extra", [
+    ("2", "2", 3, ["--ntasks=3", "--overcommit"], ["--oversubscribe"]),   # the default header
+    ("4(x2),2", "10", 11, ["--ntasks=11", "--overcommit"], ["--oversubscribe"]),
+    ("1", "3", 3, [], []),                                  # --ntasks=3 -O: one CPU, its 3 tasks
+    ("", "6", 6, [], []),                                   # CPUs unknown: the tasks
+])
+@pytest.mark.parametrize("launcher", ["srun", "mpirun"])
+def test_ranks_fill_the_allocation(sandbox, launcher, cpus, tasks, ranks, srun_extra, mpirun_extra):
+    """RANKS=auto: a worker on every CPU SLURM gave the job and the master beside them (it
+    idles), never fewer ranks than tasks; what the job has and runs is said on stdout."""
+    proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS=tasks, SLURM_JOB_CPUS_PER_NODE=cpus,
+                       SLURM_NNODES="1", SLURM_JOB_PARTITION="small", LAUNCHER=launcher)
+    (call,) = sandbox.launches
+    head = call[:call.index("mscap")]
+    assert head == (["srun", *srun_extra] if launcher == "srun" else ["mpirun", "-n", str(ranks), *mpirun_extra])
+    total = sum(int(p.split("(x")[0]) * (int(p.split("(x")[1][:-1]) if "(x" in p else 1)
+                for p in cpus.split(",") if p)
+    assert (f"job 77 (partition small, time limit unknown) has {tasks} task(s), {total} CPU(s) on 1 node(s)"
+            in proc.stdout)
+    assert f": {ranks} ranks, the master and {ranks - 1} worker(s) (RANKS=auto" in proc.stdout
+    assert f"launcher {' '.join(head)} (LAUNCHER={launcher})" in proc.stdout
+
+
+@pytest.mark.parametrize("ranks, head", [("tasks", ["mpirun", "-n", "4"]), ("6", ["mpirun", "-n", "6", "--oversubscribe"]),
+                                         ("2", ["mpirun", "-n", "2"])])
+def test_ranks_chosen_by_hand(sandbox, ranks, head):
+    sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="4", SLURM_JOB_CPUS_PER_NODE="4",
+                LAUNCHER="mpirun", RANKS=ranks)
+    (call,) = sandbox.launches
+    assert call[:call.index("mscap")] == head
+
+
+@pytest.mark.parametrize("env, says", [
+    ({"SLURM_JOB_ID": "77", "SLURM_NTASKS": "4", "RANKS": "1"}, "RANKS must be auto, tasks or a number of ranks of at least 2, not '1'"),
+    ({"SLURM_JOB_ID": "77", "SLURM_NTASKS": "4", "RANKS": "many"}, "not 'many'"),
+    ({"SLURM_JOB_ID": "77", "SLURM_NTASKS": "1", "RANKS": "tasks"}, "1 rank has no worker: ask for --ntasks=2"),
+    ({"NTASKS": "0"}, "NTASKS must be a positive number, not '0'"),
+])
+def test_bad_rank_counts_are_one_line(sandbox, env, says):
+    proc = sandbox.run("mscap_run.sbatch", check=False, **env)
+    assert proc.returncode == 2 and says in proc.stderr and len(proc.stderr.strip().splitlines()) <= 2
+    assert sandbox.launches == []
 
 
 @pytest.mark.parametrize("launcher, first", [("srun", "srun"), ("mpirun", "mpirun")])
