@@ -24,9 +24,12 @@
 #   4. a job that reaches its --signal=B:TERM warning before the time limit stops cleanly:
 #      finished runs stored, "stopped" logged, state COMPLETED (exit 0) or TIMEOUT; once with
 #      mpirun inside the allocation, once with srun --mpi=pmix where srun has PMIx;
+#   6. two nodes (a second cluster, its nodes in network namespaces): a multi-start with a
+#      worker on each node stores the one-node job's runs bit for bit; a node killed
+#      mid-run loses no announced run, and a rerun completes the rest;
 #   5. with --requeue: a job submitted with --requeue and requeued while it runs (a
 #      preemption) stops cleanly, runs again and completes, continuing the starts it kept.
-# About 2.5 minutes on 2 cores.
+# About 3 minutes on 2 cores.
 set -euo pipefail
 
 REQUIRE=0
@@ -90,18 +93,23 @@ dir="$(mktemp -d /tmp/mscap-slurm.XXXXXX)"
 host="$(hostname -s)"
 cpus="$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)"   # nproc obeys OMP_NUM_THREADS
 pids=()
+confs=()   # the clusters' slurm.conf files (the second: section 6)
+links=()   # network links of section 6's nodes
 cleanup() {
     local status=$?
     # Jobs first: a job left running outlives the daemons (its slurmstepd and ranks go on).
-    if [[ -n "${SLURM_CONF:-}" ]] && command -v squeue >/dev/null 2>&1; then
-        scancel --full --quiet $(squeue -h -o %i 2>/dev/null) 2>/dev/null || true
-        for _ in $(seq 60); do [[ -z "$(squeue -h -o %i 2>/dev/null)" ]] && break; sleep 0.5; done
-    fi
+    local conf
+    for conf in ${confs[@]+"${confs[@]}"}; do
+        command -v squeue >/dev/null 2>&1 || break
+        SLURM_CONF="$conf" scancel --full --quiet $(SLURM_CONF="$conf" squeue -h -o %i 2>/dev/null) 2>/dev/null || true
+        for _ in $(seq 60); do [[ -z "$(SLURM_CONF="$conf" squeue -h -o %i 2>/dev/null)" ]] && break; sleep 0.5; done
+    done
     for pid in ${pids[@]+"${pids[@]}"}; do kill -TERM "$pid" 2>/dev/null || true; done
     for pid in ${pids[@]+"${pids[@]}"}; do
         for _ in $(seq 50); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
         kill -KILL "$pid" 2>/dev/null || true
     done
+    for link in ${links[@]+"${links[@]}"}; do ip link del "$link" 2>/dev/null || true; done
     if (( KEEP )); then say "kept $dir"; else rm -rf "$dir"; fi
     exit "$status"
 }
@@ -145,6 +153,7 @@ PartitionName=selftest Nodes=$host Default=YES MaxTime=INFINITE State=UP
 EOF
 printf 'CgroupPlugin=autodetect\nConstrainCores=no\nConstrainRAMSpace=no\n' > "$dir/cgroup.conf"
 export SLURM_CONF="$dir/slurm.conf"
+confs+=("$SLURM_CONF")
 
 /usr/sbin/munged --socket="$dir/munge/munge.socket" --pid-file="$dir/munge/munged.pid" \
     --log-file="$dir/log/munged.log" --seed-file="$dir/munge/seed" --force \
@@ -317,6 +326,150 @@ if (( REQUEUE )); then
     [[ ! -e "$res/requeue.h5.checkpoints" ]] || fail "requeued job $rq left $res/requeue.h5.checkpoints behind"
     say "5. requeue: job $rq ran twice (Restarts=1), $(stored "$res/requeue.h5") runs stored; its log:"
     grep -E '^mscap_run: (stop|exit)|^stopp|: stopped at step|stored state|runs already stored' "$log" | sed 's/^/       /'
+fi
+
+# 6. Two nodes: a second cluster on this machine whose two slurmd run each in its own
+#    network and UTS namespace (hosts node1 and node2 on a private bridge, one CPU each; the
+#    controller on the host, munged shared). One multi-start with its master and a worker
+#    on node1 and a worker on node2 (mpirun inside the allocation; OpenMPI starts node2's
+#    ranks through srun) stores the same file as section 1's one-node job, run for run and
+#    bit for bit; then node2 is killed (every process in its namespace, SIGKILL: a node
+#    crash) while a job runs on both nodes: the job fails, every run it announced is in its
+#    file, and a rerun on node1 alone runs the rest.
+two_nodes() {
+    local conf="$dir/two/slurm.conf" net n pid ctl2 p1 p2 i
+    for cmd in ip unshare; do
+        command -v "$cmd" >/dev/null 2>&1 || { why="no $cmd"; return 1; }
+    done
+    net=""
+    for i in $(seq 20 250); do   # a private /24 no interface of this machine uses
+        ip -o -4 addr 2>/dev/null | grep -q " 10\.213\.$i\." || { net="10.213.$i"; break; }
+    done
+    [[ -n "$net" ]] || { why="no free 10.213.x.0/24"; return 1; }
+    mkdir -p "$dir/two"/{state,spool,log}
+    printf '127.0.0.1 localhost\n%s.1 %s\n%s.2 node1\n%s.3 node2\n' "$net" "$host" "$net" "$net" > "$dir/two/hosts"
+    local bridge="msb$$"
+    ip link add "$bridge" type bridge 2>/dev/null || { why="cannot create a network bridge (no CAP_NET_ADMIN?)"; return 1; }
+    links+=("$bridge")
+    ip addr add "$net.1/24" dev "$bridge" && ip link set "$bridge" up || { why="cannot configure $bridge"; return 1; }
+    read -r p1 p2 < <(python3 -c '
+import socket
+ports = []
+for _ in range(2):
+    s = socket.socket(); s.bind(("", 0)); ports.append(s.getsockname()[1]); s.close()
+print(*ports)')
+    sed -e "s/^ClusterName=.*/ClusterName=mscap-two/" -e "s/^SlurmctldHost=.*/SlurmctldHost=$host($net.1)/" \
+        -e "s/^SlurmctldPort=.*/SlurmctldPort=$p1/" -e "s/^SlurmdPort=.*/SlurmdPort=$p2/" \
+        -e "s|$dir/state|$dir/two/state|; s|^SlurmdSpoolDir=.*|SlurmdSpoolDir=$dir/two/spool/%n|" \
+        -e "s|^SlurmctldPidFile=.*|SlurmctldPidFile=$dir/two/slurmctld.pid|" \
+        -e "s|^SlurmdPidFile=.*|SlurmdPidFile=$dir/two/slurmd-%n.pid|" \
+        -e "s|^SlurmctldLogFile=.*|SlurmctldLogFile=$dir/two/log/slurmctld.log|" \
+        -e "s|^SlurmdLogFile=.*|SlurmdLogFile=$dir/two/log/slurmd-%n.log|" \
+        -e "s|^ProctrackType=.*|ProctrackType=proctrack/pgid|" -e "s|^KillWait=.*|KillWait=10\nSlurmdTimeout=10|" \
+        -e "/^NodeName=/d; /^PartitionName=/d" "$dir/slurm.conf" > "$conf"
+    printf 'NodeName=node1 NodeAddr=%s.2 CPUs=1 State=UNKNOWN\nNodeName=node2 NodeAddr=%s.3 CPUs=1 State=UNKNOWN\n' \
+        "$net" "$net" >> "$conf"
+    echo "PartitionName=two Nodes=node1,node2 Default=YES MaxTime=INFINITE State=UP" >> "$conf"
+    cp "$dir/cgroup.conf" "$dir/two/cgroup.conf"
+    confs+=("$conf")
+    slurmctld -f "$conf" || { why="the second slurmctld did not start"; return 1; }
+    for _ in $(seq 50); do [[ -s "$dir/two/slurmctld.pid" ]] && break; sleep 0.1; done
+    ctl2="$(cat "$dir/two/slurmctld.pid")"
+    pids+=("$ctl2")
+    for n in 1 2; do
+        # The node's shell takes the name, the hosts file and, once its end of the link is
+        # moved in, the address; then it becomes slurmd (its pid is the node's).
+        mkdir -p "$dir/two/spool/node$n"
+        ( unshare --net --uts --mount bash -c "echo \$\$ > '$dir/two/node$n.pid'; hostname node$n
+            mount --bind '$dir/two/hosts' /etc/hosts
+            while [ ! -e '$dir/two/node$n.go' ]; do sleep 0.05; done
+            ip link set lo up && ip addr add $net.$(( n + 1 ))/24 dev eth0 && ip link set eth0 up || exit 1
+            exec slurmd -D -f '$conf'" > "$dir/two/log/node$n.out" 2>&1 & )   # not a job of this shell
+        for _ in $(seq 100); do [[ -s "$dir/two/node$n.pid" ]] && break; sleep 0.05; done
+        pid="$(cat "$dir/two/node$n.pid" 2>/dev/null)"
+        [[ -n "$pid" ]] || { why="node$n's namespace did not start"; return 1; }
+        pids+=("$pid")
+        ip link add "msv$$n$n" type veth peer name eth0 netns "$pid" || { why="cannot link node$n"; return 1; }
+        links+=("msv$$n$n")
+        ip link set "msv$$n$n" master "$bridge" up
+        touch "$dir/two/node$n.go"
+    done
+    for _ in $(seq 150); do
+        [[ "$(SLURM_CONF="$conf" sinfo -h -o %T 2>/dev/null)" == idle ]] && break
+        sleep 0.2
+    done
+    [[ "$(SLURM_CONF="$conf" sinfo -h -o %T 2>/dev/null)" == idle ]] \
+        || { why="the two nodes did not come up: $(SLURM_CONF="$conf" sinfo -h 2>&1 | tr '\n' ' '; tail -n3 "$dir"/two/log/*.log)"; return 1; }
+}
+same_runs() {   # same_runs A.h5 B.h5: every run of A in B, its results bit for bit
+    "$VENV/bin/python" - "$1" "$2" <<'PY'
+import sys
+import numpy as np
+from mscap.service.store import finished_ids, read_run, read_store
+with read_store(sys.argv[1]) as a, read_store(sys.argv[2]) as b:
+    ids = sorted(finished_ids(a))
+    if ids != sorted(finished_ids(b)):
+        sys.exit(f"runs differ: {ids} against {sorted(finished_ids(b))}")
+    for rid in ids:
+        x, y = read_run(a, rid), read_run(b, rid)
+        same = x.status == y.status and np.array_equal(x.final_capacitance_pF, y.final_capacitance_pF) and all(
+            np.array_equal(p, q) for p, q in zip(x.final_outlines, y.final_outlines))
+        if not same:
+            sys.exit(f"{rid} differs")
+print(len(ids))
+PY
+}
+why=""
+if ! two_nodes; then
+    (( REQUIRE )) && fail "6. two nodes: $why"
+    say "6. skipped: two nodes cannot be made here ($why)"
+    why=skip
+fi
+if [[ "$why" != skip ]]; then
+    one_conf="$SLURM_CONF"
+    export SLURM_CONF="$dir/two/slurm.conf"
+    two=$(sbatch --parsable -N2 --ntasks=3 -O -o "$res/two-%j.out" \
+        --export=ALL,SCENE="$SCENE",OUT="$res/two.h5",K_MIN=2,K_MAX=2,SEEDS=0:2,LAUNCHER=mpirun,MSCAP_ARGS="$short" \
+        slurm/mscap_run.sbatch)
+    wait_job "$two" 300
+    [[ "$(state "$two")" == COMPLETED ]] || fail "two-node job $two: $(state "$two"); log: $(tail -n5 "$res/two-$two.out")"
+    grep -q 'to do on 2 workers on 2 hosts (node1: 1, node2: 1)' "$res/two-$two.out" \
+        || fail "two-node job $two did not run a worker on each node: $(grep 'to do' "$res/two-$two.out")"
+    grep -q ', rank 2); ' "$res/two-$two.out" || fail "node2's worker (rank 2) stored no run"
+    n=$(same_runs "$res/single.h5" "$res/two.h5") || fail "two-node job $two and one-node job $one differ: $n"
+    say "6. two nodes: job $two on node1 + node2 ($(grep -o 'on 2 hosts ([^)]*)' "$res/two-$two.out")):" \
+        "its $n runs equal section 1's one-node runs bit for bit"
+    # A node dies mid-run.
+    crash=$(sbatch --parsable -N2 --ntasks=3 -O -o "$res/crash-%j.out" \
+        --export=ALL,SCENE="$SCENE",OUT="$res/crash.h5",K_MIN=2,K_MAX=2,SEEDS=0:8,LAUNCHER=mpirun,MSCAP_ARGS="$short --starts-per-k 8" \
+        slurm/mscap_run.sbatch)
+    first_run "$res/crash-$crash.out" "job $crash (two nodes)"
+    node2="$(cat "$dir/two/node2.pid")"
+    netns="$(readlink "/proc/$node2/ns/net")"
+    for p in /proc/[0-9]*; do
+        [[ "$(readlink "$p/ns/net" 2>/dev/null)" == "$netns" ]] && kill -KILL "${p#/proc/}" 2>/dev/null || true
+    done
+    wait_job "$crash" 120
+    announced=$(sed -n 's/^\[[0-9]*\/[0-9]*\] \([^:]*\): .*/\1/p' "$res/crash-$crash.out" | sort)
+    kept=$("$VENV/bin/python" -c "import sys
+from mscap.service.store import finished_ids, read_store
+with read_store(sys.argv[1]) as f: print('\n'.join(sorted(finished_ids(f))))" "$res/crash.h5")
+    [[ -n "$announced" ]] || fail "job $crash announced no run before node2 died"
+    missing=$(comm -23 <(echo "$announced") <(echo "$kept"))
+    [[ -z "$missing" ]] || fail "node2's crash lost runs job $crash had announced: $missing"
+    before=$(stored "$res/crash.h5")
+    say "6. node2 killed while job $crash ran: the job ended $(state "$crash") (ExitCode $(exit_code "$crash")); the" \
+        "$(wc -w <<< "$announced") run(s) it announced are stored ($before in the file); its log:"
+    grep -E '^ORTE|^stopp|: stopped at step|^mscap_run: (mpirun exited|exit)' "$res/crash-$crash.out" | sed 's/^/       /'
+    (( before < 8 )) || fail "job $crash finished every start before node2 died: nothing was left to lose"
+    rerun=$(sbatch --parsable -N1 -w node1 --ntasks=3 -O -o "$res/crash-rerun-%j.out" \
+        --export=ALL,SCENE="$SCENE",OUT="$res/crash.h5",K_MIN=2,K_MAX=2,SEEDS=0:8,LAUNCHER=mpirun,MSCAP_ARGS="$short --starts-per-k 8" \
+        slurm/mscap_run.sbatch)
+    wait_job "$rerun" 300
+    [[ "$(state "$rerun")" == COMPLETED ]] || fail "rerun $rerun on node1: $(state "$rerun"); log: $(tail -n5 "$res/crash-rerun-$rerun.out")"
+    [[ "$(stored "$res/crash.h5")" == 8 ]] || fail "after the rerun $(stored "$res/crash.h5") runs, not 8"
+    say "6. rerun on node1 alone: job $rerun ran the other $(( 8 - before )); 8 runs stored"
+    export SLURM_CONF="$one_conf"
 fi
 
 # 4, continued.

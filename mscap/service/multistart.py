@@ -42,8 +42,10 @@ from __future__ import annotations
 
 import logging
 import math
+import socket
 import time
 import traceback
+from collections import Counter
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
@@ -67,7 +69,7 @@ from mscap.service.usage import Meter
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["run_start", "run_check", "run_multistart", "stored_table", "Finished", "CheckTask", "beaten_by",
+__all__ = ["run_start", "run_check", "run_multistart", "stored_table", "Finished", "CheckTask", "beaten_by", "on_hosts",
            "choice_text"]
 
 log = logging.getLogger(__name__)
@@ -312,10 +314,11 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
 
         comm = MPI.COMM_WORLD
     rank = comm.Get_rank()
+    hosts = comm.gather(socket.gethostname(), root=0)  # where the workers run (said by the master)
 
     def master(execute, stop) -> dict:
         return _master(scene, path, comm.Get_size(), force, retry_failed, select_configs, execute, stop,
-                       Heartbeat(progress, heartbeat_s))
+                       Heartbeat(progress, heartbeat_s), hosts[1:])
 
     def work(ask):
         return lambda task: run_check(scene, task.record, ask) if isinstance(task, CheckTask) else \
@@ -336,6 +339,15 @@ def run_multistart(scene: Scene, path: str, comm=None, force: bool = False, retr
     return summary
 
 
+def on_hosts(hosts) -> str:
+    """The workers' hosts for the master's first line, ``" on 2 hosts (node1: 3, node2: 4)"``,
+    when they run on more than one host; else ``""``."""
+    counts = Counter(hosts)
+    if len(counts) < 2:
+        return ""
+    return f" on {len(counts)} hosts ({', '.join(f'{h}: {n}' for h, n in sorted(counts.items()))})"
+
+
 def choice_text(selection, left: int = 0) -> str | None:
     """The run's closing lines on its choice: the chosen k and design, what the choice rests
     on (:meth:`~mscap.service.selection.Selection.verdict`), and advice when the plateau is
@@ -352,7 +364,7 @@ def choice_text(selection, left: int = 0) -> str | None:
 
 
 def _master(scene: Scene, path, size, force, retry_failed, select_configs, execute, stop,
-            heartbeat: Heartbeat) -> dict:
+            heartbeat: Heartbeat, hosts: list[str] = ()) -> dict:
     say = heartbeat.say
     # Every start meshes the scene and, when checked, its finer mesh: refuse a mesh beyond
     # memory now, not at the end of the first start.
@@ -396,7 +408,7 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
                 forecast.finished(summary.id, summary.wall_s, summary.pruned, kind=("start", summary.k),
                                   init=summary.id.rsplit("_", 1)[-1])
         say(f"{path}: {len(finished)} runs already stored, {total} to do on {max(size - 1, 1)} "
-            f"worker{'s' if size > 2 else ''}")
+            f"worker{'s' if size > 2 else ''}{on_hosts(hosts)}")
         if pending:
             say(f"{len(pending)} of them the finer-mesh check{'s' if len(pending) > 1 else ''} of "
                 f"{', '.join(t.id for t in pending)}: the best of {'their' if len(pending) > 1 else 'its'} k, "

@@ -728,3 +728,13 @@ def test_a_state_that_cannot_be_kept_is_said_and_the_job_ends_normally(tmp_path,
     said = [line for line in lines if "k2_s2000_lloyd: stopped at step" in line]
     assert len(said) == 1 and "not kept (" in said[0] and said[0].endswith("a rerun runs it from its beginning")
     assert checkpoints.stored(out) == []
+
+
+def test_the_start_line_names_the_workers_hosts_when_there_are_several():
+    """On two SLURM nodes the master's first line says where its workers run (slurm/selftest.sh
+    section 6 reads it); on one host it says nothing more."""
+    from mscap.service.multistart import on_hosts
+
+    assert on_hosts(["node1", "node2", "node1"]) == " on 2 hosts (node1: 2, node2: 1)"
+    assert on_hosts(["vm", "vm"]) == "" and on_hosts([]) == ""
+
