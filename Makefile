@@ -9,6 +9,8 @@ PY    := $(VENV)/bin/python
 SCENE ?= jobs/quick.toml
 NP    ?= 3
 OUT   ?= out
+# pytest workers for `make test` (pytest-xdist; one file per worker at a time).
+PYTEST_WORKERS ?= 2
 
 # Debian packages: PETSc 3.18 + petsc4py, mpi4py + OpenMPI 4.1, venv support, and OpenBLAS
 # (PETSc links the reference BLAS otherwise: OpenBLAS halves the Cholesky factorisations).
@@ -30,7 +32,7 @@ run: install
 	$(VENV)/bin/mscap plot $(OUT)/$(basename $(notdir $(SCENE))).h5 -o $(OUT)/$(basename $(notdir $(SCENE))).png
 
 test: install
-	$(PY) -m pytest -q --durations=15
+	$(PY) -m pytest -q --durations=15 -n $(PYTEST_WORKERS) --dist loadfile
 
 install: system-packages $(VENV)/.installed
 

@@ -155,3 +155,10 @@ def within(seconds: int):
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """The real-SLURM self-test first: it mostly waits for its jobs (about 3 minutes), so
+    under ``make test``'s two workers (pytest-xdist, a file per worker) it runs beside the
+    rest instead of after it."""
+    items.sort(key=lambda item: not item.nodeid.startswith("tests/service/test_slurm_real.py"))
