@@ -1,4 +1,4 @@
-"""The SLURM scripts on a real SLURM (slurm/selftest.sh, about 3 minutes): a one-node cluster,
+"""The SLURM scripts on a real SLURM (slurm/selftest.sh, about 4 minutes): a one-node cluster,
 then a two-node one whose nodes are network namespaces of this machine (section 6).
 
 The self-test runs its own cluster from Debian's SLURM and munge and stops it; it installs
@@ -31,6 +31,6 @@ def test_shipped_scripts_on_a_real_slurm(capsys):
         pytest.skip(proc.stdout.strip().splitlines()[-1])
     assert proc.returncode == 0, proc.stderr[-2000:]
     for check in ("1. single job", "2. array + merge", "3. scancel (mpirun)", "3. resubmitted", "4. time limit",
-                  "6. two nodes", "6. node2 killed", "6. rerun on node1 alone", "passed"):
+                  "4. resubmitted (mpirun)", "5. requeue", "6. two nodes", "6. node2 killed", "6. rerun on node1 alone", "passed"):
         assert f"selftest: {check}" in proc.stdout or (check.startswith("6.") and not require
                                                        and "selftest: 6. skipped" in proc.stdout)
