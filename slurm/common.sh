@@ -121,6 +121,7 @@ mscap_ranks() {
             (( cpus + 1 > ranks )) && ranks=$(( cpus + 1 ))
             how="RANKS=auto: a worker per CPU, the master shares one"
             (( ranks == tasks && cpus + 1 < tasks )) && how="RANKS=auto: the job's $tasks tasks on $cpus CPU(s)"
+            (( cpus )) || how="RANKS=auto: the job's tasks, its CPUs unknown"
             ;;
         tasks) ranks="$tasks"; how="RANKS=tasks: the job's tasks" ;;
         *)
@@ -134,7 +135,7 @@ mscap_ranks() {
         limit="$(squeue -h -j "$SLURM_JOB_ID" -o %l 2>/dev/null | head -n1)" || limit=""
     fi
     echo "$name: job $SLURM_JOB_ID (partition $partition, time limit ${limit:-unknown}) has $tasks task(s)," \
-         "$cpus CPU(s) on ${SLURM_NNODES:-1} node(s) (${SLURM_JOB_NODELIST:-?}): $ranks ranks," \
+         "${cpus/#0/?} CPU(s) on ${SLURM_NNODES:-1} node(s) (${SLURM_JOB_NODELIST:-?}): $ranks ranks," \
          "the master and $(( ranks - 1 )) worker(s) ($how)"
     if (( ranks < 2 )); then
         echo "$name: 1 rank has no worker: ask for --ntasks=2 at least, or set RANKS" >&2

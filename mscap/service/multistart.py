@@ -69,8 +69,8 @@ from mscap.service.usage import Meter
 if TYPE_CHECKING:
     from mscap.scene.settings import Scene
 
-__all__ = ["run_start", "run_check", "run_multistart", "stored_table", "Finished", "CheckTask", "beaten_by", "on_hosts",
-           "choice_text"]
+__all__ = ["run_start", "run_check", "run_multistart", "stored_table", "Finished", "CheckTask", "beaten_by",
+           "on_hosts", "choice_text"]
 
 log = logging.getLogger(__name__)
 

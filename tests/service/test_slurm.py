@@ -288,13 +288,14 @@ def test_ranks_fill_the_allocation(sandbox, launcher, cpus, tasks, ranks, srun_e
     assert head == (["srun", *srun_extra] if launcher == "srun" else ["mpirun", "-n", str(ranks), *mpirun_extra])
     total = sum(int(p.split("(x")[0]) * (int(p.split("(x")[1][:-1]) if "(x" in p else 1)
                 for p in cpus.split(",") if p)
-    assert (f"job 77 (partition small, time limit unknown) has {tasks} task(s), {total} CPU(s) on 1 node(s)"
+    assert (f"job 77 (partition small, time limit unknown) has {tasks} task(s), {total or '?'} CPU(s) on 1 node(s)"
             in proc.stdout)
     assert f": {ranks} ranks, the master and {ranks - 1} worker(s) (RANKS=auto" in proc.stdout
     assert f"launcher {' '.join(head)} (LAUNCHER={launcher})" in proc.stdout
 
 
-@pytest.mark.parametrize("ranks, head", [("tasks", ["mpirun", "-n", "4"]), ("6", ["mpirun", "-n", "6", "--oversubscribe"]),
+@pytest.mark.parametrize("ranks, head", [("tasks", ["mpirun", "-n", "4"]),
+                                         ("6", ["mpirun", "-n", "6", "--oversubscribe"]),
                                          ("2", ["mpirun", "-n", "2"])])
 def test_ranks_chosen_by_hand(sandbox, ranks, head):
     sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS="4", SLURM_JOB_CPUS_PER_NODE="4",
@@ -304,7 +305,8 @@ def test_ranks_chosen_by_hand(sandbox, ranks, head):
 
 
 @pytest.mark.parametrize("env, says", [
-    ({"SLURM_JOB_ID": "77", "SLURM_NTASKS": "4", "RANKS": "1"}, "RANKS must be auto, tasks or a number of ranks of at least 2, not '1'"),
+    ({"SLURM_JOB_ID": "77", "SLURM_NTASKS": "4", "RANKS": "1"},
+     "RANKS must be auto, tasks or a number of ranks of at least 2, not '1'"),
     ({"SLURM_JOB_ID": "77", "SLURM_NTASKS": "4", "RANKS": "many"}, "not 'many'"),
     ({"SLURM_JOB_ID": "77", "SLURM_NTASKS": "1", "RANKS": "tasks"}, "1 rank has no worker: ask for --ntasks=2"),
     ({"NTASKS": "0"}, "NTASKS must be a positive number, not '0'"),
