@@ -32,7 +32,7 @@ run: install
 	$(VENV)/bin/mscap plot $(OUT)/$(basename $(notdir $(SCENE))).h5 -o $(OUT)/$(basename $(notdir $(SCENE))).png
 
 test: install
-	$(PY) -m pytest -q --durations=15 -n $(PYTEST_WORKERS) --dist loadfile
+	$(PY) -m pytest -q --durations=15 -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 install: system-packages $(VENV)/.installed
 
