@@ -54,12 +54,13 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from mscap.calibration.report import default_paths, text_report, write_outputs
     from mscap.calibration.service import CalibrationError, Candidate, evaluate, settings, simulate_family
-    from mscap.cli.common import load_scene_for, progress_printer, start_mpi
+    from mscap.cli.common import load_scene_for, progress_printer, rank_logging, start_mpi
     from mscap.outputs import output_directory
     from mscap.service.designs import design_layouts
     from mscap.viz.calibration import error_figure
 
     comm = start_mpi().COMM_WORLD
+    rank_logging(comm)  # before the scene is loaded: its warnings once, from rank 0
     rank = comm.Get_rank()
     scene = load_scene_for(args)
     cal = settings(scene)

@@ -11,7 +11,7 @@ import sys
 from typing import Callable
 
 __all__ = ["DefaultsHelpFormatter", "load_scene_for", "add_memory_option", "add_noise_options", "add_verbose_option",
-           "progress_printer", "start_mpi", "MIN_FILE_SIZE_LIMIT_BYTES"]
+           "progress_printer", "rank_logging", "start_mpi", "MIN_FILE_SIZE_LIMIT_BYTES"]
 
 #: The smallest file-size limit (``ulimit -f``) under which MPI is started: OpenMPI 4.1's
 #: start-up writes its PMIx shared-memory segments as files and, under a limit of 1 MB,
@@ -91,6 +91,24 @@ def load_scene_for(args):
     scene = load_scene(args.scene)
     set_scene_options(scene.petsc_options)
     return scene
+
+
+def rank_logging(comm) -> None:
+    """Under MPI, every rank loads the scene and logs: each line says which rank wrote it
+    (``[rank 2] WARNING ...``); what the scene's loading says is said once, by rank 0 (every
+    rank would say the same), and advice about the scene (``record.advice``, e.g. a biased
+    element) once, by rank 0 or the first worker."""
+    import logging
+
+    rank = comm.Get_rank()
+    if comm.Get_size() == 1:
+        return
+    for handler in logging.getLogger().handlers:
+        handler.setFormatter(logging.Formatter(f"[rank {rank}] %(levelname)s %(name)s: %(message)s"))
+        if rank > 0:
+            handler.addFilter(lambda record: not record.name.startswith("mscap.scene"))
+        if rank > 1:
+            handler.addFilter(lambda record: not getattr(record, "advice", False))
 
 
 def progress_printer(quiet: bool) -> Callable[[str], None] | None:

@@ -50,13 +50,14 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from mscap.cli.common import load_scene_for, progress_printer, start_mpi
+    from mscap.cli.common import load_scene_for, progress_printer, rank_logging, start_mpi
     from mscap.service.multistart import run_multistart
     from mscap.errors import MscapError
     from mscap.service.selection import configurations, start_index
     from mscap.scene.loader import with_overrides
 
     comm = start_mpi().COMM_WORLD
+    rank_logging(comm)  # before the scene is loaded: its warnings once, from rank 0
     scene = with_overrides(load_scene_for(args), args.starts_per_k, args.prune, args.keep_repeated_starts,
                            args.check_all_runs, args.calibrate_best)
 
@@ -81,13 +82,6 @@ def run(args) -> int:
             + f" selects none of its starts (k {ms.k_min}..{ms.k_max}, start indices 0:{ms.starts_per_k})")
 
     rank = comm.Get_rank()
-    if comm.Get_size() > 1:  # worker logs say which rank wrote them
-        import logging
-
-        for handler in logging.getLogger().handlers:
-            handler.setFormatter(logging.Formatter(f"[rank {rank}] %(levelname)s %(name)s: %(message)s"))
-            if rank > 1:  # advice about the scene (e.g. a biased element) once, from the first worker
-                handler.addFilter(lambda record: not getattr(record, "advice", False))
     say = progress_printer(args.quiet or rank > 0)
     summary = run_multistart(scene, args.output, comm, force=args.force, retry_failed=args.retry_failed,
                              select_configs=keep if restricted else None, max_iterations=args.max_iterations,

@@ -52,3 +52,27 @@ def test_a_restriction_that_selects_no_start_is_one_line_not_a_quiet_nothing(tmp
     err = capsys.readouterr().err.strip()
     assert err.startswith("mscap: error: ") and said in err and "\n" not in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("rank, shown", [
+    (0, ["[rank 0] WARNING mscap.scene.calibration: seq outside", "[rank 0] WARNING mscap.fem.simulate: advice",
+         "[rank 0] WARNING mscap.fem.simulate: plain"]),
+    (1, ["[rank 1] WARNING mscap.fem.simulate: advice", "[rank 1] WARNING mscap.fem.simulate: plain"]),
+    (2, ["[rank 2] WARNING mscap.fem.simulate: plain"]),
+])
+def test_under_mpi_the_scenes_warnings_are_said_once_and_every_line_names_its_rank(monkeypatch, rank, shown):
+    """Every rank loads the scene: what loading says (a calibration sequence outside its
+    training ranges, ...) comes from rank 0 alone, advice about the scene from rank 0 or
+    the first worker, everything else from every rank, each line naming it."""
+    import io
+    import logging
+
+    stream = io.StringIO()
+    handler = logging.StreamHandler(stream)
+    root = logging.getLogger()
+    monkeypatch.setattr(root, "handlers", [handler])
+    common.rank_logging(SimpleNamespace(Get_rank=lambda: rank, Get_size=lambda: 3))
+    logging.getLogger("mscap.scene.calibration").warning("seq outside")
+    logging.getLogger("mscap.fem.simulate").warning("advice", extra={"advice": True})
+    logging.getLogger("mscap.fem.simulate").warning("plain")
+    assert stream.getvalue().splitlines() == shown
