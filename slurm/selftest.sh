@@ -316,11 +316,13 @@ until [[ "$(scontrol show job "$rq" 2>/dev/null | grep -o 'Restarts=[0-9]*' | cu
     (( SECONDS - t0 < 60 )) || fail "job $rq was not requeued: $(scontrol show job "$rq" | head -n3)"
     sleep 0.5
 done
-for _ in $(seq 20); do   # until the first run has ended and the job pends again
+for _ in $(seq 120); do   # until the first run has stopped and the job pends again
     [[ "$(state "$rq")" == PENDING ]] && break
     sleep 0.5
 done
-scontrol update jobid="$rq" StartTime=now || fail "scontrol update jobid=$rq StartTime=now failed"
+if [[ "$(state "$rq")" == PENDING ]]; then   # (a SLURM that does not hold it: nothing to lift)
+    scontrol update jobid="$rq" StartTime=now || fail "scontrol update jobid=$rq StartTime=now failed"
+fi
 wait_job "$rq" 600
 [[ "$(state "$rq")" == COMPLETED ]] || fail "requeued job $rq: $(state "$rq"); log: $(tail -n5 "$log")"
 [[ "$(stored "$res/requeue.h5")" == 3 ]] || fail "requeued job $rq stored $(stored "$res/requeue.h5") runs, not 3"
