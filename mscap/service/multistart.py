@@ -421,19 +421,22 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
                 f"an earlier start of its k: {', '.join(skipped)}")
         rungs = stored_table(store, rule, kind)
 
-        def keep(state: checkpoints.Checkpoint | checkpoints.Interrupted) -> str:
+        def keep(state: checkpoints.Checkpoint | checkpoints.Interrupted) -> str | None:
+            """Store a start's state; why it could not be, or ``None`` (a start not kept runs
+            again from its beginning)."""
             try:
                 checkpoints.save(path, state.id, state.state)
-            except (OSError, ValueError, MscapError) as exc:  # not kept: a rerun runs it from its beginning
-                return f"not kept ({exc})"
-            return f"kept in {checkpoints.directory(path)}"
+            except (OSError, ValueError, MscapError) as exc:
+                return str(exc)
+            return None
 
         def record(rec) -> None:
             nonlocal done, failed
             if isinstance(rec, checkpoints.Interrupted):  # the job is stopping: a rerun continues it
-                where = keep(rec)
+                why = keep(rec)
                 say(f"{rec.id}: stopped at step {rec.state.iteration} (level {rec.state.level}); its state is "
-                    f"{where}: a rerun " + ("runs it from its beginning" if where.startswith("not") else "continues it"))
+                    + (f"kept in {checkpoints.directory(path)}: a rerun continues it" if why is None else
+                       f"not kept ({why}): a rerun runs it from its beginning"))
                 return
             # Stored and fsync-ed, then /selection brought up to date, then announced.
             write_run(store, rec)
@@ -463,9 +466,9 @@ def _master(scene: Scene, path, size, force, retry_failed, select_configs, execu
 
         def answer(progress: Progress | Finished | checkpoints.Checkpoint) -> Verdict | str | None:
             if isinstance(progress, checkpoints.Checkpoint):
-                where = keep(progress)
-                if where.startswith("not"):
-                    say(f"{progress.id}: its state at step {progress.state.iteration} is {where}")
+                why = keep(progress)
+                if why is not None:
+                    say(f"{progress.id}: its state at step {progress.state.iteration} is not kept ({why})")
                 return None
             if isinstance(progress, Finished):
                 winner = beaten_by(progress, summaries.values())
