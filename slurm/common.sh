@@ -250,10 +250,11 @@ mscap_launch() {
     trap - TERM INT
     if (( status != 0 )) && grep -q '^stop' "$stopfile" 2>/dev/null; then
         local from=""
-        # Not asked through this script: the launcher stopped the ranks itself (mpirun
-        # TERMs them when it loses a node or a rank: "ORTE has lost communication ...").
-        (( stop )) || from=" (the stop did not come through this script: a node or rank lost? see"
-        (( stop )) || from+=" the launcher's lines above; the rerun runs what it lost)"
+        if (( ! stop )); then   # the launcher stopped the ranks itself (mpirun TERMs them when
+            # it loses a node or a rank: "ORTE has lost communication ...")
+            from=" (the stop did not come through this script: a node or rank lost? see the"
+            from+=" launcher's lines above; the rerun runs what it lost)"
+        fi
         echo "$name: ${launcher[0]} exited $status after mscap's clean stop ($(head -n1 "$stopfile")):" \
              "the finished work is stored; status 0$from" >&2
         status=0

@@ -113,13 +113,16 @@ cleanup() {
 }
 trap cleanup EXIT
 
-# Free ports: the controller's and the node daemon's.
-read -r ctld_port slurmd_port < <(python3 -c '
+# Two free ports: a controller's and its node daemons'.
+free_ports() {
+    python3 -c '
 import socket
 ports = []
 for _ in range(2):
     s = socket.socket(); s.bind(("", 0)); ports.append(s.getsockname()[1]); s.close()
-print(*ports)')
+print(*ports)'
+}
+read -r ctld_port slurmd_port < <(free_ports)
 
 mkdir -p "$dir"/{state,spool,log,munge,results}
 chmod 700 "$dir/munge"
@@ -192,6 +195,11 @@ first_run() {   # first_run LOG WHAT: until the job logging to LOG has stored a 
         (( SECONDS - t0 < 300 )) || fail "$2 stored no run in 300 s"
         sleep 0.5
     done
+}
+stored_ids() {   # the ids of the finished runs in an HDF5 file, sorted, one a line
+    "$VENV/bin/python" -c "import sys
+from mscap.service.store import finished_ids, read_store
+with read_store(sys.argv[1]) as f: print('\n'.join(sorted(finished_ids(f))))" "$1"
 }
 stored() {   # the number of finished runs in an HDF5 file
     "$VENV/bin/python" - "$1" <<'PY'
@@ -358,12 +366,7 @@ two_nodes() {
     ip link add "$bridge" type bridge 2>/dev/null || { why="cannot create a network bridge (no CAP_NET_ADMIN?)"; return 1; }
     links+=("$bridge")
     ip addr add "$net.1/24" dev "$bridge" && ip link set "$bridge" up || { why="cannot configure $bridge"; return 1; }
-    read -r p1 p2 < <(python3 -c '
-import socket
-ports = []
-for _ in range(2):
-    s = socket.socket(); s.bind(("", 0)); ports.append(s.getsockname()[1]); s.close()
-print(*ports)')
+    read -r p1 p2 < <(free_ports)
     sed -e "s/^ClusterName=.*/ClusterName=mscap-two/" -e "s/^SlurmctldHost=.*/SlurmctldHost=$host($net.1)/" \
         -e "s/^SlurmctldPort=.*/SlurmctldPort=$p1/" -e "s/^SlurmdPort=.*/SlurmdPort=$p2/" \
         -e "s|$dir/state|$dir/two/state|; s|^SlurmdSpoolDir=.*|SlurmdSpoolDir=$dir/two/spool/%n|" \
@@ -457,9 +460,7 @@ if [[ "$why" != skip ]]; then
     done
     wait_job "$crash" 120
     announced=$(sed -n 's/^\[[0-9]*\/[0-9]*\] \([^:]*\): .*/\1/p' "$res/crash-$crash.out" | sort)
-    kept=$("$VENV/bin/python" -c "import sys
-from mscap.service.store import finished_ids, read_store
-with read_store(sys.argv[1]) as f: print('\n'.join(sorted(finished_ids(f))))" "$res/crash.h5")
+    kept=$(stored_ids "$res/crash.h5")
     [[ -n "$announced" ]] || fail "job $crash announced no run before node2 died"
     missing=$(comm -23 <(echo "$announced") <(echo "$kept"))
     [[ -z "$missing" ]] || fail "node2's crash lost runs job $crash had announced: $missing"
