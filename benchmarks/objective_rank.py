@@ -57,14 +57,29 @@ FIELDS = ["scene", "tag", "design", "kind", "k", "bound_mm", "error_mm", "spread
           "objective_choice", "spearman", "run_s", "calibration_s", "simulation_s", "starts_s"]
 
 
+#: A ``[calibration.training]`` axis line, ``name = [lo, hi, count]``.
+TRAINING_AXIS = re.compile(r"^(\w+) = \[\s*([-\d.]+),\s*([-\d.]+),\s*(\d+)\]", re.M)
+
+
+def _table(text: str, table: str) -> tuple[str, str, str]:
+    """``text`` split around the body of ``[table]``: (up to its header, the body, the rest)."""
+    head, sep, rest = text.partition(f"[{table}]\n")
+    if not sep:
+        sys.exit(f"the scene has no [{table}] table")
+    body, nxt, tail = rest.partition("\n[")
+    return head + sep, body, nxt + tail
+
+
+def training_ranges(text: str) -> dict[str, tuple[float, float]]:
+    """Every ``[calibration.training]`` axis's ``(lo, hi)``."""
+    return {m[1]: (float(m[2]), float(m[3])) for m in TRAINING_AXIS.finditer(_table(text, "calibration.training")[1])}
+
+
 def widened(text: str, fraction: float, axes=()) -> str:
     """The scene text with every ``[calibration.training]`` axis ``[lo, hi, n]`` (or only
     those named in ``axes``) widened by ``fraction`` of its span: upwards when it starts at 0
     (an inflation, an indentation), else about its centre (an angle)."""
-    head, sep, rest = text.partition("[calibration.training]\n")
-    if not sep:
-        sys.exit("the scene has no [calibration.training] table")
-    body, nxt, tail = rest.partition("\n[")
+    head, body, tail = _table(text, "calibration.training")
 
     def widen(match: re.Match) -> str:
         if axes and match[1] not in axes:
@@ -74,8 +89,7 @@ def widened(text: str, fraction: float, axes=()) -> str:
         lo, hi = (lo, hi + grow) if lo == 0 else (lo - grow / 2, hi + grow / 2)
         return f"{match[1]} = [{lo:.6g}, {hi:.6g}, {n}]"
 
-    body = re.sub(r"^(\w+) = \[\s*([-\d.]+),\s*([-\d.]+),\s*(\d+)\]", widen, body, flags=re.M)
-    return head + sep + body + nxt + tail
+    return head + TRAINING_AXIS.sub(widen, body) + tail
 
 
 def sequence_moved(text: str, fraction: float, axes=()) -> str:
@@ -83,25 +97,17 @@ def sequence_moved(text: str, fraction: float, axes=()) -> str:
     that :func:`widened` applies to its training axis (a narrowed family whose sequence is
     narrowed with it: each waypoint keeps its place relative to the training range, the
     ones outside it stay outside)."""
-    ranges = {}
-    for source, key in ((text, "old"), (widened(text, fraction, axes), "new")):
-        body = source.partition("[calibration.training]\n")[2].partition("\n[")[0]
-        for m in re.finditer(r"^(\w+) = \[\s*([-\d.]+),\s*([-\d.]+),\s*(\d+)\]", body, flags=re.M):
-            ranges.setdefault(m[1], {})[key] = (float(m[2]), float(m[3]))
-    head, sep, rest = text.partition("[calibration.sequence]\n")
-    if not sep:
-        sys.exit("the scene has no [calibration.sequence] table")
-    body, nxt, tail = rest.partition("\n[")
+    old, new = training_ranges(text), training_ranges(widened(text, fraction, axes))
+    head, body, tail = _table(text, "calibration.sequence")
 
     def move(match: re.Match) -> str:
-        if match[1] not in ranges or (axes and match[1] not in axes):
+        if match[1] not in old:
             return match[0]
-        (lo, hi), (lo2, hi2) = ranges[match[1]]["old"], ranges[match[1]]["new"]
+        (lo, hi), (lo2, hi2) = old[match[1]], new[match[1]]
         values = [lo2 + (float(v) - lo) * (hi2 - lo2) / (hi - lo) for v in match[2].split(",")]
         return f"{match[1]} = [" + ", ".join(f"{v:.6g}" for v in values) + "]"
 
-    body = re.sub(r"^(\w+)\s*=\s*\[([-\d.,\s]+)\]", move, body, flags=re.M)
-    return head + sep + body + nxt + tail
+    return head + re.sub(r"^(\w+)\s*=\s*\[([-\d.,\s]+)\]", move, body, flags=re.M) + tail
 
 
 def with_keys(text: str, table: str, **values) -> str:
