@@ -271,14 +271,14 @@ def test_auto_launcher_uses_mpirun_when_srun_lacks_pmi(sandbox):
     assert "using mpirun inside the allocation" in proc.stdout
 
 
-@pytest.mark.parametrize("cpus, tasks, ranks, srun_extra, mpirun_extra", [
-    ("2", "2", 3, ["--ntasks=3", "--overcommit"], ["--oversubscribe"]),   # the default header
-    ("4(x2),2", "10", 11, ["--ntasks=11", "--overcommit"], ["--oversubscribe"]),
-    ("1", "3", 3, [], []),                                  # --ntasks=3 -O: one CPU, its 3 tasks
-    ("", "6", 6, [], []),                                   # CPUs unknown: the tasks
+@pytest.mark.parametrize("cpus, total, tasks, ranks, srun_extra, mpirun_extra", [
+    ("2", "2", "2", 3, ["--ntasks=3", "--overcommit"], ["--oversubscribe"]),   # the default header
+    ("4(x2),2", "10", "10", 11, ["--ntasks=11", "--overcommit"], ["--oversubscribe"]),
+    ("1", "1", "3", 3, [], []),                             # --ntasks=3 -O: one CPU, its 3 tasks
+    ("", "?", "6", 6, [], []),                              # CPUs unknown: the tasks
 ])
 @pytest.mark.parametrize("launcher", ["srun", "mpirun"])
-def test_ranks_fill_the_allocation(sandbox, launcher, cpus, tasks, ranks, srun_extra, mpirun_extra):
+def test_ranks_fill_the_allocation(sandbox, launcher, cpus, total, tasks, ranks, srun_extra, mpirun_extra):
     """RANKS=auto: a worker on every CPU SLURM gave the job and the master beside them (it
     idles), never fewer ranks than tasks; what the job has and runs is said on stdout."""
     proc = sandbox.run("mscap_run.sbatch", SLURM_JOB_ID="77", SLURM_NTASKS=tasks, SLURM_JOB_CPUS_PER_NODE=cpus,
@@ -286,9 +286,7 @@ def test_ranks_fill_the_allocation(sandbox, launcher, cpus, tasks, ranks, srun_e
     (call,) = sandbox.launches
     head = call[:call.index("mscap")]
     assert head == (["srun", *srun_extra] if launcher == "srun" else ["mpirun", "-n", str(ranks), *mpirun_extra])
-    total = sum(int(p.split("(x")[0]) * (int(p.split("(x")[1][:-1]) if "(x" in p else 1)
-                for p in cpus.split(",") if p)
-    assert (f"job 77 (partition small, time limit unknown) has {tasks} task(s), {total or '?'} CPU(s) on 1 node(s)"
+    assert (f"job 77 (partition small, time limit unknown) has {tasks} task(s), {total} CPU(s) on 1 node(s)"
             in proc.stdout)
     assert f": {ranks} ranks, the master and {ranks - 1} worker(s) (RANKS=auto" in proc.stdout
     assert f"launcher {' '.join(head)} (LAUNCHER={launcher})" in proc.stdout
