@@ -39,7 +39,7 @@ from typing import Any, Callable, Iterable, TypeVar
 
 Result = TypeVar("Result")
 
-__all__ = ["TAGS", "STOP_SIGNALS", "STOP_GRACE_S", "STOP_FILE_ENV", "Stop", "Abandoned", "pass_stop_on", "farm",
+__all__ = ["TAGS", "STOP_SIGNALS", "STOP_GRACE_S", "STOP_FILE_ENV", "Stop", "Abandoned", "pass_stop_on", "Crew", "farm",
            "serve", "ask_master", "abort_at_exit", "release", "quiet_barrier", "run"]
 
 #: Message tags between master and workers, in one place.
@@ -134,27 +134,57 @@ def pass_stop_on(comm) -> None:
         signal.signal(s, handle)
 
 
+class Crew:
+    """Master side: the workers of a job across several :func:`farm` calls (a fit farms one
+    batch of forward simulations per iteration): how many have not yet said "ready", and
+    which wait for the next batch (parked)."""
+
+    def __init__(self, comm):
+        self.unready = comm.Get_size() - 1
+        self.parked: list[int] = []
+
+
 def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop,
          answer: Callable[[Any], Any] | None = None, tick: Callable[[dict], None] | None = None,
-         grace_s: float = STOP_GRACE_S) -> int:
+         grace_s: float = STOP_GRACE_S, crew: Crew | None = None, keep: bool = False) -> int:
     """Master side: every task of ``todo`` to a worker, ``record(result)`` for each
     result, ``answer(question)`` sent back to a worker that asks, ``tick(busy)`` while
-    waiting. Returns when all workers are stopped, or once ``stop`` has been set for
-    ``grace_s`` seconds; the number of workers then still busy."""
+    waiting. Returns when all workers are stopped (with ``keep``: when every task is done,
+    the workers parked in ``crew`` for the next call), or once ``stop`` has been set for
+    ``grace_s`` seconds; the number of workers then still busy. A call without ``keep``
+    lets every worker of ``crew`` go (``todo`` may be empty)."""
     from mpi4py import MPI
 
     status = MPI.Status()
+    crew = crew or Crew(comm)
     queue = list(todo)
     busy: dict[int, tuple[Any, float]] = {}  # worker -> (task, handed out at)
-    waiting = comm.Get_size() - 1  # every worker says "ready" first, then returns results
+
+    def next_task(worker: int) -> None:
+        """Hand ``worker`` a task, park it (``keep``) or let it go."""
+        if queue and not stop.requested:
+            busy[worker] = (queue.pop(0), time.monotonic())
+            comm.send(busy[worker][0], dest=worker, tag=TAGS["work"])
+        elif keep and not stop.requested:
+            crew.parked.append(worker)
+        else:
+            comm.send(None, dest=worker, tag=TAGS["stop"])
+
+    parked, crew.parked = crew.parked, []
+    for worker in parked:
+        next_task(worker)
     stopping = None
-    while waiting:
+    # Every unready worker says "ready" first, then returns results; with ``keep`` the
+    # unready are waited for only while tasks are left for them.
+    while busy or crew.unready and (not keep or queue and not stop.requested):
         while not comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
             if stop.requested:
                 stop.notice()  # once, at once
                 stopping = stopping or time.monotonic()
                 if time.monotonic() - stopping > grace_s:
                     return len(busy)
+                if keep and not busy:
+                    return 0
             if tick is not None:
                 tick(busy)
             time.sleep(0.01)
@@ -172,17 +202,20 @@ def farm(comm, todo: Iterable, record: Callable[[Any], None], stop: Stop,
             else:
                 comm.send(None if answer is None else answer(message), dest=worker, tag=TAGS["answer"])
             continue
+        if status.Get_tag() == TAGS["ready"]:
+            crew.unready -= 1
         if status.Get_tag() == TAGS["result"]:
             busy.pop(worker, None)
             if message is not None:  # None: an abandoned task
                 record(message)
-        if queue and not stop.requested:
-            busy[worker] = (queue.pop(0), time.monotonic())
-            comm.send(busy[worker][0], dest=worker, tag=TAGS["work"])
-        else:
-            comm.send(None, dest=worker, tag=TAGS["stop"])
-            waiting -= 1
+        next_task(worker)
     return 0
+
+
+#: How often a worker waiting for its next task looks for it (s): between a fit's batches a
+#: worker may wait as long as the master's step takes, and OpenMPI's blocking receive
+#: polls at full speed.
+SERVE_POLL_S = 0.002
 
 
 def serve(comm, work: Callable[[Any], Any]) -> None:
@@ -192,6 +225,8 @@ def serve(comm, work: Callable[[Any], Any]) -> None:
     status = MPI.Status()
     comm.send(None, dest=0, tag=TAGS["ready"])
     while True:
+        while not comm.Iprobe(source=0, tag=MPI.ANY_TAG):  # a blocking receive spins a core
+            time.sleep(SERVE_POLL_S)
         task = comm.recv(source=0, tag=MPI.ANY_TAG, status=status)
         if status.Get_tag() == TAGS["stop"]:
             return
@@ -260,13 +295,13 @@ def quiet_barrier(comm) -> None:
         time.sleep(BARRIER_POLL_S)
 
 
-#: ``execute(tasks, record, answer=None)``: the master's one call that gets every task done.
+#: ``execute(tasks, record, answer=None, tick=None)``: the master's call that gets every task done.
 Execute = Callable[..., None]
 
 
 def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any], Any]],
         master: Callable[[Execute, Stop], Result], stopped_message: str,
-        say: Callable[[str], None]) -> Result | None:
+        say: Callable[[str], None], batches: bool = False) -> Result | None:
     """The MPI master/worker skeleton of every service.
 
     Ranks > 0 serve ``make_work(ask)`` until told to stop and return ``None``; ``ask``
@@ -281,7 +316,11 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
     Ctrl-C, set ``stop`` (rank 0 says so at once, :meth:`Stop.notice`; nothing more is handed
     out, busy workers drop their task at their next question, the master closes its files as
     usual), then rank 0 says ``stopped_message``; workers still busy after
-    :data:`STOP_GRACE_S` are aborted with the job."""
+    :data:`STOP_GRACE_S` are aborted with the job.
+
+    With ``batches`` the master may call ``execute`` any number of times (a fit: one batch
+    of forward simulations per iteration); the workers wait between batches and are let
+    go when ``master`` returns."""
     if comm.Get_rank() != 0:
         pass_stop_on(comm)
         try:
@@ -291,7 +330,7 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
             raise
         quiet_barrier(comm)
         return None
-    stop, farming, left = Stop(say), False, 0
+    stop, farming, left, crew = Stop(say), False, 0, Crew(comm)
 
     def execute(tasks: Iterable, record: Callable[[Any], None], answer: Callable[[Any], Any] | None = None,
                 tick: Callable[[dict], None] | None = None) -> None:
@@ -317,7 +356,7 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
                     busy[0] = (task, time.monotonic())
                     record(work(task))
             else:
-                left = farm(comm, tasks, record, stop, answer, tick)
+                left = farm(comm, tasks, record, stop, answer, tick, crew=crew, keep=batches)
         except KeyboardInterrupt:
             stop.request("Ctrl-C")
             stop.notice()
@@ -326,6 +365,8 @@ def run(comm, make_work: Callable[[Callable[[Any], Any] | None], Callable[[Any],
 
     try:
         result = master(execute, stop)
+        if batches and comm.Get_size() > 1 and not left:
+            farm(comm, [], record=lambda result: None, stop=stop, crew=crew)  # let the kept workers go
     except BaseException as exc:
         if stop.noticed:
             write_stop_file("error")  # the stop began, but the job did not end cleanly

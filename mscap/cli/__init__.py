@@ -17,14 +17,14 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from mscap import __version__
-from mscap.cli import (calibrate, capacitance, fabricate, inspect, merge, mesh, optimize, plot, readout, run,
-                       simulate)
+from mscap.cli import (calibrate, capacitance, fabricate, fit, inspect, merge, mesh, optimize, plot, readout,
+                       run, simulate)
 from mscap.cli.common import DefaultsHelpFormatter, add_verbose_option
 from mscap.errors import MscapError
 
 __all__ = ["main", "build_parser", "parse"]
 
-_COMMANDS = (mesh, capacitance, simulate, optimize, run, inspect, merge, plot, calibrate, readout, fabricate)
+_COMMANDS = (mesh, capacitance, simulate, optimize, run, inspect, merge, plot, calibrate, fit, readout, fabricate)
 
 
 def build_parser() -> argparse.ArgumentParser:

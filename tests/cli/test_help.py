@@ -49,7 +49,7 @@ def test_help_has_no_literal_percent_percent_and_shows_defaults(name):
 
 def test_the_subcommands_are_all_checked():
     assert {"mesh", "capacitance", "simulate", "optimize", "run", "inspect", "merge", "plot",
-            "calibrate", "readout"} <= set(subparsers())
+            "calibrate", "readout", "fit"} <= set(subparsers())
 
 
 def test_defaults_are_shown_once_and_never_as_none_or_false():
@@ -69,7 +69,8 @@ def test_one_name_per_idea_across_the_commands():
     for name, parser in subparsers().items():
         for action in parser._actions:
             if "-o" in action.option_strings:
-                assert action.metavar == "DIR" or action.metavar.endswith((".h5", ".png")), (name, action.metavar)
+                assert action.metavar == "DIR" or action.metavar.endswith((".h5", ".png", ".toml")), \
+                    (name, action.metavar)
         visible = {o for a in parser._actions if a.help != argparse.SUPPRESS for o in a.option_strings}
         assert not visible & {"--noise-relative", "--noise-additive-pF"}, name
     for name in ("calibrate", "readout"):
