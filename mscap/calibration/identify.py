@@ -166,14 +166,14 @@ def fit_problem(path: str, source: str, specs: list[str], measurements: Measurem
                       measurements=measurements)
 
 
-def forward(problem: FitProblem, values, simulate: Callable | None = None) -> np.ndarray:
+def forward(problem: FitProblem, values) -> np.ndarray:
     """The simulated ``(len(measurements.poses), k)`` capacitances at ``values``."""
-    from mscap.fem.simulate import simulate as simulate_scene
+    from mscap.fem.simulate import simulate
     from mscap.scene import load_scene
     from mscap.scene.loader import select_poses
 
     scene = select_poses(load_scene(problem.path, source=problem.text_at(values)), list(problem.measurements.poses))
-    table = (simulate or simulate_scene)(scene).capacitance_pF
+    table = simulate(scene).capacitance_pF
     if not np.all(np.isfinite(table)):
         raise CalibrationError(f"the forward at {problem.describe(values)} gave a non-finite capacitance")
     return table
@@ -196,7 +196,7 @@ def solve(problem: FitProblem, evaluate: Evaluate, workers: int = 1, step: float
     steps = step * problem.typical
     cache: dict[bytes, np.ndarray] = {}
     jacobians: dict[bytes, np.ndarray] = {}
-    count = {"forwards": 0, "batches": 0}
+    count = {"forwards": 0}
     speculate = workers > n
 
     def columns_at(x):
@@ -205,7 +205,6 @@ def solve(problem: FitProblem, evaluate: Evaluate, workers: int = 1, step: float
 
     def run(batch):
         count["forwards"] += len(batch)
-        count["batches"] += 1
         return evaluate(batch)
 
     def residual_of(table):

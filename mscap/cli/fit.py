@@ -44,6 +44,7 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     import datetime
+    import os
     from pathlib import Path
 
     from mscap import farm
@@ -61,8 +62,13 @@ def run(args) -> int:
         raise CalibrationError(f"--step must lie in (0, 0.5), got {args.step}")
     if args.max_forwards < 1:
         raise CalibrationError(f"--max-forwards must be >= 1, got {args.max_forwards}")
-    if Path(args.output).resolve() == Path(args.scene).resolve():
+    output = Path(args.output)
+    if output.resolve() == Path(args.scene).resolve():
         raise CalibrationError(f"-o {args.output}: that is the scene fitted; write the fitted scene elsewhere")
+    folder = output.parent if str(output.parent) else Path(".")
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        raise CalibrationError(f"-o {args.output}: {folder} is not a writable directory (checked before the fit, "
+                               f"not after it)")
     measurements = read_measurements(args.measurements, [p.name for p in scene.poses], len(scene.layout.outlines))
     problem = fit_problem(scene.path, scene.source, args.param, measurements)
     say = progress_printer(args.quiet or comm.Get_rank() > 0)

@@ -152,6 +152,7 @@ def test_on_mpi_workers_the_fit_is_the_same(noisy_fit, scene_file, tmp_path):
     (["--param", "thickness_scale=a:3"], "bounds are LO:HI (numbers; either may be empty), got 'a:3'"),
     (["--param", "thickness_scale", "--param", "layers.dielectric.thickness_mm"], "move the same value"),
     (["--param", "thickness_scale", "--step", "0"], "--step must lie in (0, 0.5), got 0.0"),
+    (["--param", "thickness_scale", "-o", "/nonexistent/f.toml"], "/nonexistent is not a writable directory"),
 ])
 def test_bad_arguments_are_one_line(scene_file, tmp_path, args, says):
     csv = tmp_path / "r.csv"
