@@ -133,6 +133,17 @@ def test_permittivity_and_thickness_are_reported_as_a_pair_the_readings_cannot_s
         (tmp_path / "f.toml").read_text()
 
 
+def test_the_multistart_runs_on_a_fitted_scene_unchanged(noisy_fit, tmp_path):
+    _, fitted, _ = noisy_fit
+    out = tmp_path / "results.h5"
+    done = subprocess.run([MSCAP, "run", str(fitted), "-o", str(out), "--k-min", "2", "--k-max", "2",
+                           "--starts-per-k", "1", "--max-iterations", "2", "-q"], env=ENV, capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    inspect = subprocess.run([MSCAP, "inspect", str(out), "--json"], env=ENV, capture_output=True, text=True)
+    assert json.loads(inspect.stdout)["chosen_k"] == 2
+
+
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="no mpirun (make installs openmpi-bin)")
 def test_on_mpi_workers_the_fit_is_the_same(noisy_fit, scene_file, tmp_path):
     """Three workers for two parameters: each trial point and its Jacobian's columns at once;
