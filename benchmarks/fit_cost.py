@@ -4,10 +4,11 @@ Fits the gap (``thickness_scale``) and the poke depth (``poses.*.depth_mm``) of
 ``jobs/poking.toml`` — two parameters the readings separate (the gap sets the rest value,
 the depth the gains; plate size and gap they do not, docs/validation.md) — to the paper's
 measured means (``benchmarks/data/paper_poking_measured_mean.csv``: rest and poke_0, so each
-forward is two poses) on one process, on ``mpirun -n 3`` (two workers: a Jacobian's two
-columns at once) and on ``mpirun -n 4`` (three workers, more than the parameters: each
-trial point with its columns at once), one after another, and writes
-``docs/fit_cost.csv``. Run alone on the machine (about 10 minutes on 2 cores)::
+forward is two poses) on one process and on ``mpirun -n 3`` (two workers: a Jacobian's two
+columns at once), one after the other, and writes ``docs/fit_cost.csv``;
+``FIT_COST_RANKS=1,3,4`` adds three workers (more than the parameters: each trial point with
+its columns at once), which needs three free cores to mean anything. Run alone on the
+machine (about 6 minutes on 2 cores)::
 
     .venv/bin/python benchmarks/fit_cost.py
 """
@@ -33,9 +34,8 @@ ENV = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIR
 ARGS = ["fit", str(ROOT / "jobs" / "poking.toml"), str(ROOT / "benchmarks" / "data" / "paper_poking_measured_mean.csv"),
         "--param", "thickness_scale=0.7:1.5", "--param", "poses.*.depth_mm=8:18", "--max-forwards", "10", "--json",
         "-q"]
-#: One process, then two workers (a Jacobian's two columns at once), then three (more than
-#: the parameters: each trial point with its columns at once).
-RANKS = tuple(int(r) for r in os.environ.get("FIT_COST_RANKS", "1,3,4").split(","))
+#: One process, then two workers (``FIT_COST_RANKS``, comma-separated rank counts).
+RANKS = tuple(int(r) for r in os.environ.get("FIT_COST_RANKS", "1,3").split(","))
 FIELDS = ["ranks", "workers", "forwards", "trial_points", "wall_s", "wall_per_forward_s", "thickness_scale",
           "depth_mm", "rms_pF", "message"]
 
