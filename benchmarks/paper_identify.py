@@ -44,6 +44,7 @@ from benchmarks._common import write_csv  # noqa: E402
 from benchmarks.paper_setups import SCENE, SHIPPED_APPLICATOR, held  # noqa: E402
 from mscap.calibration.identify import fit_problem, solve  # noqa: E402
 from mscap.calibration.measurements import read_measurements  # noqa: E402
+from mscap.errors import MscapError  # noqa: E402
 from mscap.fem.simulate import simulate  # noqa: E402
 from mscap.scene import load_scene  # noqa: E402
 from mscap.scene.edit import apply, parameter  # noqa: E402
@@ -92,7 +93,7 @@ def evaluate_with(problem):
         for values in batch:
             try:
                 out.append(readings(problem, values))
-            except Exception as exc:  # noqa: BLE001 - a trial point the model refuses
+            except MscapError as exc:  # a trial point the model refuses: the solver shortens its step
                 out.append(str(exc))
         return out
     return evaluate
@@ -112,20 +113,18 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=str(ROOT / "docs" / "paper_identify"))
     args = parser.parse_args(argv)
     rows, details = [], []
-    measured = None
+    poses = [p.name for p in load_scene(SCENE).poses]  # every setup has the shipped poses
+    readings_of = {target: read_measurements(path, poses, 4) for target, path in TARGETS.items()}
     for fit in args.fits.split(","):
         name, _, target = fit.partition(":")
         holding, radius = SETUPS[name]
         source = setup_source(holding, radius)
-        scene = load_scene(SCENE, source=source)
-        meas = read_measurements(TARGETS[target], [p.name for p in scene.poses], 4)
-        measured = measured or read_measurements(TARGETS["measured"], [p.name for p in scene.poses], 4)
-        problem = fit_problem(str(SCENE), source, SPECS, meas)
+        problem = fit_problem(str(SCENE), source, SPECS, readings_of[target])
         t0 = time.perf_counter()
         result = solve(problem, evaluate_with(problem), step=0.01, max_iterations=args.max_forwards,
                        say=lambda line: print(f"[{name} {target}] {line}", flush=True))
         full = result.model_pF  # the rows are rest and poke_0, every plate: the table itself
-        sims = read_measurements(TARGETS["simulated"], [p.name for p in scene.poses], 4)
+        sims, measured = readings_of["simulated"], readings_of["measured"]
         row = dict(setup=name, target=target,
                    plate_mm=float(result.values[0]), plate_se=float(result.standard_error[0]),
                    applicator=float(result.values[1] * SHIPPED_APPLICATOR),

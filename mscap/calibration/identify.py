@@ -35,7 +35,7 @@ from typing import Callable
 import numpy as np
 
 from mscap.calibration.measurements import Measurements
-from mscap.errors import CalibrationError, MscapError
+from mscap.errors import CalibrationError
 from mscap.scene.edit import Parameter, apply, format_number, parameter
 
 __all__ = ["FitProblem", "FitResult", "CORRELATED", "NULL", "read_spec", "fit_problem", "solve", "statistics",
@@ -184,15 +184,16 @@ def forward(problem: FitProblem, values) -> np.ndarray:
 Evaluate = Callable[[list[np.ndarray]], list]
 
 
-def solve(problem: FitProblem, evaluate: Evaluate, workers: int = 1, step: float = 1e-2,
+def solve(problem: FitProblem, evaluate: Evaluate, ranks: int = 1, step: float = 1e-2,
           max_iterations: int = 30, say: Callable[[str], None] | None = None) -> FitResult:
     """Least squares from the scene's values; ``evaluate`` runs the forwards of a batch
-    (farmed, or one after another); ``workers`` says how many run at once."""
+    (farmed to the ``ranks − 1`` workers of an MPI job, or one after another on one rank)."""
     from scipy.optimize import least_squares
 
     say = say or (lambda line: None)
     meas = problem.measurements
     n, t0 = len(problem.parameters), time.perf_counter()
+    workers = max(ranks - 1, 1)
     steps = step * problem.typical
     cache: dict[bytes, np.ndarray] = {}
     jacobians: dict[bytes, np.ndarray] = {}
@@ -200,6 +201,7 @@ def solve(problem: FitProblem, evaluate: Evaluate, workers: int = 1, step: float
     speculate = workers > n
 
     def columns_at(x):
+        """The finite-difference steps at ``x`` (away from an upper bound) and their points."""
         h = np.where(x + steps <= problem.upper, steps, -steps)
         return h, [x + h[i] * np.eye(n)[i] for i in range(n)]
 
@@ -210,11 +212,14 @@ def solve(problem: FitProblem, evaluate: Evaluate, workers: int = 1, step: float
     def residual_of(table):
         return (meas.model(table) - meas.values_pF).ravel()
 
+    def jacobian(f0, h, tables):
+        return np.stack([(residual_of(t) - f0) / h[i] for i, t in enumerate(tables)], axis=1)
+
     def fun(x):
         key = x.tobytes()
         if key not in cache:
-            batch = [x] + (columns_at(x)[1] if speculate else [])
-            tables = run(batch)
+            h, points = columns_at(x)
+            tables = run([x] + (points if speculate else []))
             if isinstance(tables[0], str):
                 if not cache:
                     raise CalibrationError(f"the forward at the scene's values failed: {tables[0]}")
@@ -222,9 +227,7 @@ def solve(problem: FitProblem, evaluate: Evaluate, workers: int = 1, step: float
                 return np.full(meas.values_pF.size, np.nan)
             cache[key] = residual_of(tables[0])
             if speculate and not any(isinstance(t, str) for t in tables[1:]):
-                h, _ = columns_at(x)
-                jacobians[key] = np.stack([(residual_of(t) - cache[key]) / h[i] for i, t in enumerate(tables[1:])],
-                                          axis=1)
+                jacobians[key] = jacobian(cache[key], h, tables[1:])
             say(f"  forward {count['forwards']}: {problem.describe(x)}: RMS residual "
                 f"{np.sqrt(np.mean(cache[key] ** 2)):.4g} pF")
         return cache[key]
@@ -233,13 +236,13 @@ def solve(problem: FitProblem, evaluate: Evaluate, workers: int = 1, step: float
         key = x.tobytes()
         if key not in jacobians:
             f0 = fun(x)
-            h, batch = columns_at(x)
-            tables = run(batch)
+            h, points = columns_at(x)
+            tables = run(points)
             for i, t in enumerate(tables):
                 if isinstance(t, str):
                     raise CalibrationError(f"the forward for {problem.parameters[i].name}'s derivative at "
                                            f"{problem.describe(x)} failed: {t}")
-            jacobians[key] = np.stack([(residual_of(t) - f0) / h[i] for i, t in enumerate(tables)], axis=1)
+            jacobians[key] = jacobian(f0, h, tables)
         return jacobians[key]
 
     x0 = np.clip(problem.start, problem.lower, problem.upper)
@@ -249,18 +252,17 @@ def solve(problem: FitProblem, evaluate: Evaluate, workers: int = 1, step: float
     result = least_squares(fun, x0, jac=jac, bounds=(problem.lower, problem.upper), x_scale=problem.typical,
                            method="trf", xtol=TOLERANCE, ftol=TOLERANCE, gtol=1e-8, max_nfev=max_iterations)
     x = result.x
-    J = jac(x)
-    r = fun(x)
-    stats = statistics(J, r, problem.typical, meas.runs if meas.runs is not None else None,
-                       [p.name for p in problem.parameters], per_reading=meas.values_pF.shape[1])
+    r = fun(x)  # both cached: the accepted point's residuals and Jacobian
+    se, correlation, kind, unseparated, undetermined = statistics(
+        jac(x), r, problem.typical, meas.runs, [p.name for p in problem.parameters],
+        per_reading=meas.values_pF.shape[1])
     at_bound = tuple(p.name for p, v, lo, hi in zip(problem.parameters, x, problem.lower, problem.upper)
                      if np.isclose(v, lo, rtol=1e-6, atol=0) or np.isclose(v, hi, rtol=1e-6, atol=0))
-    model = r.reshape(meas.values_pF.shape) + meas.values_pF
-    return FitResult(values=x, standard_error=stats[0], correlation=stats[1], covariance_kind=stats[2],
-                     unseparated=stats[3], undetermined=stats[4], model_pF=model,
-                     residual_pF=r.reshape(meas.values_pF.shape), message=result.message,
-                     iterations=int(result.nfev), forwards=count["forwards"], wall_s=time.perf_counter() - t0,
-                     ranks=workers + (1 if workers > 1 else 0), at_bound=at_bound)
+    residual = r.reshape(meas.values_pF.shape)
+    return FitResult(values=x, standard_error=se, correlation=correlation, covariance_kind=kind,
+                     unseparated=unseparated, undetermined=undetermined, model_pF=residual + meas.values_pF,
+                     residual_pF=residual, message=result.message, iterations=int(result.nfev),
+                     forwards=count["forwards"], wall_s=time.perf_counter() - t0, ranks=ranks, at_bound=at_bound)
 
 
 def statistics(J: np.ndarray, r: np.ndarray, typical: np.ndarray, runs, names: list[str], per_reading: int = 1):
@@ -311,10 +313,3 @@ def fitted_text(problem: FitProblem, result: FitResult, when: str = "") -> str:
     if result.undetermined:
         lines.append(f"#   not determined by the readings: {', '.join(result.undetermined)}")
     return "\n".join(lines) + "\n" + problem.text_at(result.values)
-
-
-def check_finite(problem: FitProblem, result: FitResult) -> None:
-    """A fit whose residuals are not finite is an error, never a scene written."""
-    if not np.all(np.isfinite(result.residual_pF)):
-        raise MscapError(f"the fit ended at {problem.describe(result.values)} with non-finite residuals "
-                         f"({result.message})")

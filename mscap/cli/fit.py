@@ -48,7 +48,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from mscap import farm
-    from mscap.calibration.identify import check_finite, fit_problem, fitted_text, forward, solve
+    from mscap.calibration.identify import fit_problem, fitted_text, forward, solve
     from mscap.calibration.identify_report import fit_record, report_text
     from mscap.calibration.measurements import read_measurements
     from mscap.cli.common import load_scene_for, progress_printer, rank_logging, start_mpi
@@ -90,9 +90,8 @@ def run(args) -> int:
                 raise MscapError(f"stopped ({stop.reason}) during the fit: nothing written")
             return [tables[i] for i in range(len(batch))]
 
-        result = solve(problem, evaluate, workers=max(comm.Get_size() - 1, 1), step=args.step,
+        result = solve(problem, evaluate, ranks=comm.Get_size(), step=args.step,
                        max_iterations=args.max_forwards, say=say)
-        check_finite(problem, result)
         when = datetime.datetime.now().strftime("%Y-%m-%d %H:%M")
         replace_text(args.output, fitted_text(problem, result, when))
         return result

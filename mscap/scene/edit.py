@@ -161,7 +161,7 @@ def _table_of_lines(lines: list[str]) -> list[tuple]:
     owners = []
     for line in lines:
         header = _HEADER.match(line)
-        if header and not _KEY.match(line):
+        if header:
             parts = tuple(header["name"].split("."))
             if header["open"] == "[[":
                 counts[parts] = counts.get(parts, -1) + 1
@@ -186,8 +186,9 @@ def apply(path: str, source: str, parameters: list[Parameter], values) -> str:
     owners = _table_of_lines(lines)
     for p, value in zip(parameters, values):
         for place, v in zip(p.places, p.values_at(float(value))):
-            element = place[-1] if isinstance(place[-1], int) and isinstance(_get(data, place[:-1]), list) \
-                and not (len(place) >= 2 and place[-2] in NAMED_ARRAYS) else None
+            # Only a ``key[i]`` name ends its place with an index (an element of a named
+            # array is always followed by its key).
+            element = place[-1] if isinstance(place[-1], int) else None
             key_place = place[:-1] if element is not None else place
             at = _line_of(lines, owners, key_place)
             if at is None:
@@ -221,7 +222,7 @@ def _line_of(lines: list[str], owners: list[tuple], place: tuple) -> int | None:
     ``a.key = ...`` in a table above it."""
     for at, (line, owner) in enumerate(zip(lines, owners)):
         m = _KEY.match(line)
-        if m is None or line.lstrip().startswith("#") or _HEADER.match(line) and not m:
+        if m is None:  # a header, a comment, a blank line or inside a multi-line value
             continue
         if owner + tuple(m["key"].split(".")) == place:
             value = m["rest"].partition("#")[0].strip()

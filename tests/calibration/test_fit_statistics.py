@@ -125,7 +125,7 @@ def test_with_more_workers_than_parameters_the_columns_come_with_the_forward(lin
         return evaluator(design)(batch)
 
     serial = solve(linear_problem(design, readings), evaluator(design))
-    result = solve(linear_problem(design, readings), evaluate, workers=3)
+    result = solve(linear_problem(design, readings), evaluate, ranks=4)
     assert set(sizes) == {3}  # each trial point with its two columns, never a batch of its own
     assert np.array_equal(result.values, serial.values)
 
